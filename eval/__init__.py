@@ -1,0 +1,1 @@
+"""Evaluator: ADD / ADD-S AUC, calibration error, BOP results and the paper's tables."""

@@ -1,0 +1,1 @@
+"""FEEPE: training-free end-effector pose estimation and online camera-to-base calibration."""
