@@ -61,7 +61,7 @@ class Robot:
         return {name: q_arm[..., i] for i, name in enumerate(self.arm.joints)}
 
     def T_base_link(self, q_arm) -> dict[str, np.ndarray]:
-        poses = self.kinematics.link_poses(self._q(q_arm), defaults=self.canonical)
+        poses = self.kinematics.link_poses({**self.canonical, **self._q(q_arm)})
         T_base_root = inv_T(poses[self.arm.base_link])
         return {name: T_base_root @ T for name, T in poses.items()}
 
