@@ -1,0 +1,232 @@
+"""Build and render a SynEEPose segment in Blender (Cycles).
+
+Two view layers: `main` (everything; RGB, z-depth, object index) and `ee_only` (only the
+end-effector, 1 sample; its object index is the full silhouette that BOP calls `mask`). Depth and
+object index come from the pixel-centre ray, so they agree with each other and with OpenCV.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import bpy
+import numpy as np
+import trimesh
+
+from syneepose.blender.exr import read_passes, srgb_to_linear
+from syneepose.robots.model import RobotModel
+from syneepose.scene.spec import Distractor, Light, Plane, SegmentSpec, Surface
+
+PASS_EE, PASS_ARM = 1, 2
+MAIN, EE_ONLY = "main", "ee_only"
+BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def reset(spec: SegmentSpec) -> None:
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = spec.samples
+    scene.cycles.use_adaptive_sampling = False
+    scene.cycles.use_denoising = spec.denoise
+    scene.cycles.max_bounces = spec.max_bounces
+    scene.cycles.seed = 0
+    scene.render.use_persistent_data = True
+    scene.render.resolution_x, scene.render.resolution_y = spec.width, spec.height
+    scene.render.resolution_percentage = 100
+    scene.render.dither_intensity = 0.0
+    scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
+    scene.render.image_settings.file_format = "OPEN_EXR_MULTILAYER"
+    scene.render.image_settings.color_depth = "32"
+    for name in ("robot", "ee", "backdrop"):
+        scene.collection.children.link(bpy.data.collections.new(name))
+    main = scene.view_layers[0]
+    main.name = MAIN
+    ee_only = scene.view_layers.new(EE_ONLY)
+    ee_only.samples = 1
+    for layer in (main, ee_only):
+        layer.use_pass_z = True
+        layer.use_pass_object_index = True
+    for child in ee_only.layer_collection.children:
+        child.exclude = child.name != "ee"
+    world = bpy.data.worlds.new("world")
+    scene.world = world
+    world.use_nodes = True
+    background = world.node_tree.nodes["Background"]
+    background.inputs["Color"].default_value = (*spec.world_color, 1.0)
+    background.inputs["Strength"].default_value = spec.world_strength
+
+
+def set_camera(K: np.ndarray, width: int, height: int, T_base_cam: np.ndarray) -> None:
+    """OpenCV intrinsics -> Blender camera (pixel centres at integers; checked to 0.01 px)."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    data = bpy.data.cameras.new("camera")
+    data.sensor_fit = "HORIZONTAL"
+    data.sensor_width = 36.0
+    data.lens = fx * 36.0 / width
+    data.shift_x = ((width - 1) / 2 - cx) / width
+    data.shift_y = (cy - (height - 1) / 2) / width * (fx / fy)
+    data.clip_start, data.clip_end = 0.01, 100.0
+    scene = bpy.context.scene
+    scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = (1.0, fx / fy) if fx >= fy else (fy / fx, 1.0)
+    cam = bpy.data.objects.new("camera", data)
+    scene.collection.objects.link(cam)
+    cam.matrix_world = (T_base_cam @ BLENDER_FROM_OPENCV).T.tolist()
+    scene.camera = cam
+
+
+def _mesh(name: str, vertices: np.ndarray, faces: np.ndarray, smooth_angle: float | None = 0.6):
+    me = bpy.data.meshes.new(name)
+    me.vertices.add(len(vertices))
+    me.vertices.foreach_set("co", np.asarray(vertices, dtype=np.float32).ravel())
+    me.loops.add(3 * len(faces))
+    me.loops.foreach_set("vertex_index", np.asarray(faces, dtype=np.int32).ravel())
+    me.polygons.add(len(faces))
+    me.polygons.foreach_set("loop_start", np.arange(0, 3 * len(faces), 3, dtype=np.int32))
+    me.update()
+    me.validate()
+    if smooth_angle is not None:
+        me.shade_smooth()
+        me.set_sharp_from_angle(angle=smooth_angle)
+    return me
+
+
+def _object(name: str, mesh, material, collection: str, pass_index: int = 0):
+    ob = bpy.data.objects.new(name, mesh)
+    ob.data.materials.append(material)
+    ob.pass_index = pass_index
+    bpy.data.collections[collection].objects.link(ob)
+    return ob
+
+
+def _principled(name: str):
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    return mat, mat.node_tree.nodes["Principled BSDF"]
+
+
+def rgba_material(name: str, rgba, roughness: float = 0.4, metallic: float = 0.0):
+    mat, bsdf = _principled(name)
+    bsdf.inputs["Base Color"].default_value = (*srgb_to_linear(rgba[:3]), 1.0)
+    bsdf.inputs["Roughness"].default_value = roughness
+    bsdf.inputs["Metallic"].default_value = metallic
+    return mat
+
+
+TEXTURE_NODES = {"noise": ("ShaderNodeTexNoise", "Fac"), "voronoi": ("ShaderNodeTexVoronoi", "Distance"),
+                 "wave": ("ShaderNodeTexWave", "Fac"), "brick": ("ShaderNodeTexBrick", "Fac"),
+                 "checker": ("ShaderNodeTexChecker", "Fac")}
+
+
+def surface_material(name: str, surface: Surface):
+    mat, bsdf = _principled(name)
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf.inputs["Roughness"].default_value = surface.roughness
+    if surface.image:
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = bpy.data.images.load(surface.image)
+        links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+        return mat
+    if surface.kind == "plain":
+        bsdf.inputs["Base Color"].default_value = (*surface.color_a, 1.0)
+        return mat
+    coords = nodes.new("ShaderNodeTexCoord")
+    mapping = nodes.new("ShaderNodeMapping")
+    mapping.inputs["Scale"].default_value = (surface.scale,) * 3
+    node_type, output = TEXTURE_NODES[surface.kind]
+    tex = nodes.new(node_type)
+    ramp = nodes.new("ShaderNodeValToRGB")
+    ramp.color_ramp.elements[0].color = (*surface.color_a, 1.0)
+    ramp.color_ramp.elements[1].color = (*surface.color_b, 1.0)
+    links.new(coords.outputs["Object"], mapping.inputs["Vector"])
+    links.new(mapping.outputs["Vector"], tex.inputs["Vector"])
+    links.new(tex.outputs[output], ramp.inputs["Fac"])
+    links.new(ramp.outputs["Color"], bsdf.inputs["Base Color"])
+    return mat
+
+
+class RobotObjects:
+    """One Blender object per URDF visual; `pose` places them from FK link poses."""
+
+    def __init__(self, model: RobotModel, urdf_dir: Path, ee_links: set[str]):
+        self.items = []
+        meshes, materials = {}, {}
+        for link in model.links:
+            is_ee = link.name in ee_links
+            for k, visual in enumerate(link.visuals):
+                if visual.mesh not in meshes:
+                    tm = trimesh.load(str(Path(urdf_dir) / visual.mesh), force="mesh", process=False)
+                    meshes[visual.mesh] = _mesh(Path(visual.mesh).stem, tm.vertices, tm.faces)
+                key = tuple(np.round(visual.rgba, 4))
+                if key not in materials:
+                    materials[key] = rgba_material(f"robot_{len(materials)}", visual.rgba)
+                ob = _object(f"{link.name}_{k}", meshes[visual.mesh], materials[key], "ee" if is_ee else "robot",
+                             PASS_EE if is_ee else PASS_ARM)
+                self.items.append((link.name, visual.origin, ob))
+
+    def pose(self, T_base_link: dict[str, np.ndarray]) -> None:
+        for link, origin, ob in self.items:
+            ob.matrix_world = (T_base_link[link] @ origin).T.tolist()
+
+
+def add_lights(lights: list[Light]) -> None:
+    for i, spec in enumerate(lights):
+        data = bpy.data.lights.new(f"light{i}", spec.kind)
+        data.color = spec.color
+        data.energy = spec.energy
+        if spec.kind == "AREA":
+            data.size = spec.size
+        elif spec.kind == "POINT":
+            data.shadow_soft_size = spec.size
+        else:
+            data.angle = spec.size
+        ob = bpy.data.objects.new(f"light{i}", data)
+        ob.matrix_world = spec.T_base_light.T.tolist()
+        bpy.context.scene.collection.objects.link(ob)
+
+
+def add_planes(planes: list[Plane]) -> None:
+    for i, plane in enumerate(planes):
+        w, h = plane.size
+        v = np.array([[-w / 2, -h / 2, 0], [w / 2, -h / 2, 0], [w / 2, h / 2, 0], [-w / 2, h / 2, 0]])
+        ob = _object(f"plane{i}", _mesh(f"plane{i}", v, np.array([[0, 1, 2], [0, 2, 3]]), None),
+                     surface_material(f"plane{i}", plane.surface), "backdrop")
+        ob.matrix_world = plane.T_base_plane.T.tolist()
+
+
+DISTRACTOR_MESHES = {
+    "cube": lambda s: trimesh.creation.box(extents=(s, s, s)),
+    "sphere": lambda s: trimesh.creation.icosphere(subdivisions=3, radius=s / 2),
+    "cylinder": lambda s: trimesh.creation.cylinder(radius=s / 3, height=s, sections=48),
+    "torus": lambda s: trimesh.creation.torus(major_radius=s / 2, minor_radius=s / 6),
+}
+
+
+def add_distractors(distractors: list[Distractor]) -> None:
+    for i, d in enumerate(distractors):
+        tm = DISTRACTOR_MESHES[d.kind](d.size)
+        ob = _object(f"distractor{i}", _mesh(f"distractor{i}", tm.vertices, tm.faces),
+                     surface_material(f"distractor{i}", d.surface), "backdrop")
+        ob.matrix_world = d.T_base_obj.T.tolist()
+
+
+def render(workdir: Path | None = None) -> dict[str, np.ndarray]:
+    """Render the current frame; returns linear RGB and the passes of both layers (H, W)."""
+    fd, path = tempfile.mkstemp(suffix=".exr", dir=workdir)
+    os.close(fd)
+    try:
+        bpy.context.scene.render.filepath = path
+        bpy.ops.render.render(write_still=True)
+        passes = read_passes(Path(path))
+    finally:
+        os.unlink(path)
+    return {
+        "rgb_linear": passes[f"{MAIN}.Combined"][..., :3],
+        "depth": passes[f"{MAIN}.Depth"],
+        "index": np.rint(passes[f"{MAIN}.Object Index"]).astype(np.int32),
+        "ee_depth": passes[f"{EE_ONLY}.Depth"],
+        "ee_index": np.rint(passes[f"{EE_ONLY}.Object Index"]).astype(np.int32),
+    }

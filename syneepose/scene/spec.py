@@ -1,0 +1,69 @@
+"""The plain description of one segment that the Blender side renders; frames are in the robot base."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+SURFACE_KINDS = ("plain", "noise", "voronoi", "wave", "brick", "checker")
+
+
+@dataclass
+class Surface:
+    """A procedural material: two linear-RGB colours mixed by a Blender texture node."""
+
+    kind: str
+    color_a: tuple[float, float, float]
+    color_b: tuple[float, float, float]
+    scale: float
+    roughness: float = 0.5
+    image: str | None = None  # a user background image replaces the procedural pattern
+
+
+@dataclass
+class Plane:
+    T_base_plane: np.ndarray  # plane in its local xy, normal +z
+    size: tuple[float, float]
+    surface: Surface
+
+
+@dataclass
+class Light:
+    kind: str  # "AREA" | "POINT" | "SUN"; Blender lights shine along their local -z
+    T_base_light: np.ndarray
+    color: tuple[float, float, float]  # linear RGB, from a colour temperature
+    energy: float  # W (area, point) or W/m^2 (sun)
+    size: float  # m (area side, point radius) or rad (sun angle)
+
+
+@dataclass
+class Distractor:
+    kind: str  # "cube" | "sphere" | "cylinder" | "torus"
+    size: float
+    T_base_obj: np.ndarray
+    surface: Surface
+
+
+@dataclass
+class SegmentSpec:
+    config: str
+    scene_id: int
+    seed: int
+    width: int
+    height: int
+    K: np.ndarray  # (3, 3) OpenCV intrinsics
+    T_base_cam: np.ndarray  # (4, 4) OpenCV camera in the robot base, static over the segment
+    q: np.ndarray  # (n_frames, n_arm) arm joint positions
+    samples: int = 16
+    denoise: bool = False
+    max_bounces: int = 12
+    world_color: tuple[float, float, float] = (0.05, 0.05, 0.05)
+    world_strength: float = 1.0
+    lights: list[Light] = field(default_factory=list)
+    planes: list[Plane] = field(default_factory=list)
+    distractors: list[Distractor] = field(default_factory=list)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.q)
