@@ -1,4 +1,4 @@
-"""Command line: `python -m syneepose assets [--out DIR] [--robots ARM+EE,...] [--force]`."""
+"""Command line: `python -m syneepose assets | render` (see `--help` of each)."""
 
 from __future__ import annotations
 
@@ -22,6 +22,62 @@ def _assets(args) -> None:
         print(f"assets: up to date ({len(configs)} configurations), nothing to do")
 
 
+def _resolution(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise UserError(f"--resolution {text!r} must be WxH, e.g. 640x480") from None
+    if w < 8 or h < 8:
+        raise UserError(f"--resolution {text!r} is too small (at least 8x8)")
+    return w, h
+
+
+def _render(args) -> None:
+    from tqdm import tqdm
+
+    from syneepose import jobs as J
+    from syneepose import paths
+    from syneepose.robots.build import build_assets
+    from syneepose.robots.catalog import load_catalog
+
+    preset = J.load_preset(args.preset)
+    configs = load_catalog().parse_configs(args.robots)
+    width, height = _resolution(args.resolution) if args.resolution else tuple(preset["resolution"])
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / ".write-probe").write_text("")
+        (out / ".write-probe").unlink()
+    except OSError as exc:
+        raise UserError(f"cannot write to --out {out}: {exc.strerror}") from exc
+    backgrounds = ()
+    if args.backgrounds:
+        folder = Path(args.backgrounds)
+        backgrounds = tuple(sorted(str(p) for p in folder.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg")))
+        if not backgrounds:
+            raise UserError(f"--backgrounds {folder}: no .png/.jpg images found")
+    assets = paths.assets_dir()
+    build_assets(assets, configs, log=lambda *_: None)
+    jobs = J.make_jobs(args.preset, preset, out, configs, args.seed,
+                       args.segments or int(preset["segments"]), args.frames or int(preset["frames"]),
+                       width, height, args.samples or int(preset["samples"]), assets, backgrounds,
+                       J.parse_shard(args.shard))
+    J.write_dataset_info(out, args.preset, jobs, configs, assets)
+    done_before = {j: J.frames_done(j) for j in jobs}
+    todo = [j for j in jobs if done_before[j] < j.frames]
+    bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="frame", desc="render")
+
+    def report(job):
+        bar.update(job.frames - done_before[job])
+
+    if args.executor == "ray":
+        J.run_ray(todo, args.ray_address, report)
+    else:
+        J.run_local(todo, args.workers, report)
+    bar.close()
+    print(f"render: {len(jobs)} segments in {out / J.SPLIT}")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m syneepose", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -30,6 +86,21 @@ def main(argv=None) -> int:
     p.add_argument("--robots", help="comma-separated ARM+EE configurations (default: all 18)")
     p.add_argument("--force", action="store_true", help="rebuild even when up to date")
     p.set_defaults(func=_assets)
+    r = sub.add_parser("render", help="render RGB-D segments in BOP format")
+    r.add_argument("--preset", default="mini", help="mini, paper or a YAML path")
+    r.add_argument("--out", required=True, help="data set root (BOP: <out>/train/<scene_id>/)")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--robots", help="comma-separated ARM+EE configurations (default: all 18)")
+    r.add_argument("--segments", type=int, help="segments per configuration (preset default)")
+    r.add_argument("--frames", type=int, help="frames per segment (preset default)")
+    r.add_argument("--resolution", help="WxH (preset default)")
+    r.add_argument("--samples", type=int, help="Cycles samples per pixel (preset default)")
+    r.add_argument("--backgrounds", help="folder of images to put on walls at random")
+    r.add_argument("--shard", help="i/N: render every N-th segment starting at i (cluster job arrays)")
+    r.add_argument("--executor", choices=["local", "ray"], default="local")
+    r.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
+    r.add_argument("--workers", type=int, default=1, help="local worker processes (Cycles uses all cores)")
+    r.set_defaults(func=_render)
     args = parser.parse_args(argv)
     try:
         args.func(args)

@@ -45,6 +45,20 @@ class Robot:
     def __post_init__(self):
         self.kinematics = Kinematics(self.model)
 
+    ee_root = EE_ROOT
+
+    @property
+    def ee_links(self) -> list[str]:
+        """Links of the end-effector: `ee_mount` and everything below it."""
+        out, frontier = [EE_ROOT], [EE_ROOT]
+        while frontier:
+            parent = frontier.pop()
+            for j in self.model.joints:
+                if j.parent == parent:
+                    out.append(j.child)
+                    frontier.append(j.child)
+        return out
+
     @property
     def arm_joints(self) -> tuple[str, ...]:
         return self.arm.joints

@@ -1,0 +1,47 @@
+"""Render one planned segment into one BOP scene (runs inside a worker process)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from syneepose.blender import scene as bscene
+from syneepose.blender.exr import linear_to_srgb8
+from syneepose.bop import Frame, SceneMeta, SceneWriter
+from syneepose.robots.robot import Robot
+from syneepose.scene.spec import SegmentSpec
+from syneepose.transforms import inv_T
+
+BACKGROUND_DEPTH = 1e9  # Cycles writes 1e10 where a ray hits nothing
+
+
+def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=None) -> int:
+    """Render the frames not yet on disk; returns how many were rendered."""
+    writer = SceneWriter(Path(scene_dir), SceneMeta(
+        obj_id=robot.ee.obj_id, arm=robot.arm.name, end_effector=robot.ee.name,
+        joint_names=list(robot.arm.joints), T_cam_base=inv_T(spec.T_base_cam)))
+    todo = [i for i in range(spec.n_frames) if not writer.done(i)]
+    if not todo:
+        return 0
+    bscene.reset(spec)
+    bscene.set_camera(spec.K, spec.width, spec.height, spec.T_base_cam)
+    bscene.add_lights(spec.lights)
+    bscene.add_planes(spec.planes)
+    bscene.add_distractors(spec.distractors)
+    objects = bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
+    T_cam_base = inv_T(spec.T_base_cam)
+    for i in todo:
+        q = spec.q[i]
+        T_base_link = robot.T_base_link(q)
+        objects.pose(T_base_link)
+        out = bscene.render(Path(scene_dir))
+        depth = np.where(out["depth"] < BACKGROUND_DEPTH, out["depth"], 0.0)
+        writer.write(Frame(
+            im_id=i, rgb=linear_to_srgb8(out["rgb_linear"]), depth=depth,
+            mask=out["ee_index"] == bscene.PASS_EE, mask_visib=out["index"] == bscene.PASS_EE,
+            K=spec.K, T_cam_ee=T_cam_base @ T_base_link[robot.ee_root], joint_positions=q,
+            T_base_ee=T_base_link[robot.ee_root]))
+        if progress is not None:
+            progress(1)
+    return len(todo)

@@ -1,0 +1,164 @@
+"""The render job list: one job = one segment = one BOP scene, in its own worker process.
+
+Scene ids are stable: configuration index in the catalogue x segments per configuration + segment,
+so a shard, a resumed run or a `--robots` subset writes the same scene as the full run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from importlib.metadata import version
+from multiprocessing import get_context
+from pathlib import Path
+
+import yaml
+
+from syneepose import __version__, paths
+from syneepose.errors import UserError
+from syneepose.robots.catalog import load_catalog
+
+SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
+SPLIT = "train"
+PRESET_KEYS = {"name", "segments", "frames", "resolution", "samples", "render", "camera", "motion", "lights",
+               "world", "backdrop", "distractors", "templates"}
+
+
+def load_preset(name_or_path: str) -> dict:
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = SCENES_DIR / f"{name_or_path}.yaml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in SCENES_DIR.glob("*.yaml")))
+        raise UserError(f"preset {name_or_path!r} not found; known presets: {known}, or give a YAML path")
+    try:
+        preset = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise UserError(f"preset {path} is not valid YAML: {exc}") from exc
+    unknown = set(preset) - PRESET_KEYS
+    if unknown:
+        raise UserError(f"preset {path}: unknown keys {sorted(unknown)}; allowed: {sorted(PRESET_KEYS)}")
+    for key in ("camera", "motion", "lights", "backdrop"):
+        if key not in preset:
+            raise UserError(f"preset {path}: missing section {key!r}")
+    return preset
+
+
+@dataclass(frozen=True)
+class Job:
+    config: str
+    scene_id: int
+    segment: int
+    seed: int
+    frames: int
+    width: int
+    height: int
+    samples: int
+    out: str
+    preset: str
+    assets: str
+    backgrounds: tuple[str, ...] = ()
+
+    @property
+    def scene_dir(self) -> Path:
+        return Path(self.out) / SPLIT / f"{self.scene_id:06d}"
+
+
+def parse_shard(text: str | None) -> tuple[int, int]:
+    if not text:
+        return 0, 1
+    try:
+        i, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise UserError(f"--shard {text!r} must be i/N, e.g. 0/4") from None
+    if not (n >= 1 and 0 <= i < n):
+        raise UserError(f"--shard {text!r}: need 0 <= i < N")
+    return i, n
+
+
+def make_jobs(preset_name: str, preset: dict, out: Path, configs: list[str], seed: int, segments: int,
+              frames: int, width: int, height: int, samples: int, assets: Path,
+              backgrounds: tuple[str, ...] = (), shard: tuple[int, int] = (0, 1)) -> list[Job]:
+    all_configs = load_catalog().configurations
+    jobs = []
+    for config in configs:
+        for segment in range(segments):
+            scene_id = all_configs.index(config) * segments + segment
+            jobs.append(Job(config, scene_id, segment, seed, frames, width, height, samples, str(out), preset_name,
+                            str(assets), backgrounds))
+    i, n = shard
+    return jobs[i::n]
+
+
+def frames_done(job: Job) -> int:
+    try:
+        return len(json.loads((job.scene_dir / "scene_gt.json").read_text()))
+    except (OSError, ValueError):
+        return 0
+
+
+def run_job(job: Job) -> int:
+    """Worker entry point (fresh process): plan the segment, then render what is missing."""
+    import trimesh
+
+    from syneepose.blender.segment import render_segment
+    from syneepose.robots.ee_models import load_ee_mesh
+    from syneepose.robots.robot import load_robot
+    from syneepose.scene.motion import Visibility
+    from syneepose.scene.plan import plan_segment
+
+    preset = load_preset(job.preset)
+    robot = load_robot(job.config, Path(job.assets))
+    mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name, Path(job.assets)))
+    points, _ = trimesh.sample.sample_surface(mesh, 300, seed=0)
+    spec = plan_segment(preset, robot, Visibility(robot, points), job.scene_id, job.seed, job.frames,
+                        job.width, job.height, job.samples, list(job.backgrounds))
+    return render_segment(spec, robot, job.scene_dir)
+
+
+def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: list[str], assets: Path) -> None:
+    info_path = out / "dataset_info.json"
+    info = {}
+    if info_path.is_file():
+        info = json.loads(info_path.read_text())
+    first = asdict(jobs[0]) if jobs else {}
+    info.update({
+        "preset": preset_name, "seed": first.get("seed"), "frames_per_segment": first.get("frames"),
+        "resolution": [first.get("width"), first.get("height")], "samples": first.get("samples"),
+        "configurations": sorted(set(info.get("configurations", [])) | set(configs)),
+        "split": SPLIT, "depth_scale": 0.1,
+        "versions": {"syneepose": __version__, "bpy": version("bpy")},
+    })
+    tmp = info_path.with_name(f".{info_path.name}.tmp{os.getpid()}")
+    tmp.write_text(json.dumps(info, indent=2, sort_keys=True))
+    os.replace(tmp, info_path)
+    models = out / "models"
+    if not models.is_dir():
+        staging = out / f".models.tmp{os.getpid()}"
+        shutil.copytree(paths.models_dir(assets), staging, ignore=shutil.ignore_patterns(".*"))
+        os.replace(staging, models)
+
+
+def run_local(jobs: list[Job], workers: int, progress) -> None:
+    ctx = get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1) as pool:
+        futures = [(job, pool.submit(run_job, job)) for job in jobs]
+        for job, future in futures:
+            future.result()
+            progress(job)
+
+
+def run_ray(jobs: list[Job], address: str | None, progress) -> None:
+    import ray
+
+    ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    remote = ray.remote(max_retries=2)(run_job)
+    pending = {remote.remote(job): job for job in jobs}
+    while pending:
+        done, _ = ray.wait(list(pending), num_returns=1)
+        job = pending.pop(done[0])
+        ray.get(done[0])
+        progress(job)

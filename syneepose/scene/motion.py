@@ -1,0 +1,86 @@
+"""Arm motion: smooth random joint trajectories, and the checks that decide whether a segment is
+usable (end-effector inside the image and visible enough, arm above the floor)."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from syneepose.robots.model import read_urdf
+from syneepose.transforms import inv_T, transform_points
+
+
+def min_jerk(s: np.ndarray) -> np.ndarray:
+    """0 -> 1 with zero velocity and acceleration at both ends (monotone, so limits hold)."""
+    return 10 * s**3 - 15 * s**4 + 6 * s**5
+
+
+def trajectory(rng, home, limits, n_frames: int, n_waypoints: int, spread: float) -> np.ndarray:
+    """Waypoints around `home` (within `spread` rad and the limits) joined by min-jerk blends."""
+    lo, hi = np.asarray(limits, float).T
+    home = np.asarray(home, float)
+    way = np.clip(home + rng.uniform(-spread, spread, (n_waypoints, len(home))), lo, hi)
+    if n_frames == 1:
+        return way[:1]
+    t = np.linspace(0.0, n_waypoints - 1, n_frames)
+    k = np.minimum(t.astype(int), n_waypoints - 2)
+    blend = min_jerk(t - k)[:, None]
+    return way[k] + blend * (way[k + 1] - way[k])
+
+
+class Visibility:
+    """Fast pre-render checks: model points projected into the image and ray-cast against the arm's
+    convex link hulls (a conservative occluder)."""
+
+    def __init__(self, robot, ee_points: np.ndarray):
+        self.robot = robot
+        self.points = ee_points  # (n, 3) on the end-effector surface, in ee_mount (metres)
+        arm = read_urdf(robot.urdf)
+        ee_links = set(robot.ee_links)
+        self.hulls = {}
+        for link in arm.links:
+            if link.name in ee_links or not link.visuals:
+                continue
+            meshes = [trimesh.load(str(robot.urdf.parent / v.mesh), force="mesh", process=False)
+                      .apply_transform(v.origin) for v in link.visuals]
+            self.hulls[link.name] = trimesh.util.concatenate(meshes).convex_hull
+        self.moving: set[str] = set()
+        changed = True
+        while changed:
+            before = len(self.moving)
+            self.moving |= {j.child for j in arm.joints if j.type != "fixed" or j.parent in self.moving}
+            changed = len(self.moving) != before
+
+    def check(self, q: np.ndarray, T_base_cam: np.ndarray, K: np.ndarray, width: int, height: int,
+              margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Per frame: (fraction of points inside the image, fraction inside and unoccluded)."""
+        poses = self.robot.T_base_link(q)
+        T_cam_base = inv_T(T_base_cam)
+        inside, visible = np.zeros(len(q)), np.zeros(len(q))
+        for i in range(len(q)):
+            p_cam = transform_points(T_cam_base @ poses[self.robot.ee_root][i], self.points)
+            z = p_cam[:, 2]
+            uv = p_cam[:, :2] / np.maximum(z, 1e-9)[:, None] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+            ok = (z > 0.05) & (uv[:, 0] >= margin * width) & (uv[:, 0] <= (1 - margin) * width - 1) \
+                & (uv[:, 1] >= margin * height) & (uv[:, 1] <= (1 - margin) * height - 1)
+            inside[i] = ok.mean()
+            if not ok.any():
+                continue
+            occluders = trimesh.util.concatenate([h.copy().apply_transform(T_cam_base @ poses[name][i])
+                                                  for name, h in self.hulls.items()])
+            targets = p_cam[ok]
+            dist = np.linalg.norm(targets, axis=1)
+            dirs = targets / dist[:, None]
+            locs, ray_idx, _ = occluders.ray.intersects_location(np.zeros_like(dirs), dirs, multiple_hits=False)
+            blocked = np.zeros(len(dirs), bool)
+            hit = np.linalg.norm(locs, axis=1) < dist[ray_idx] - 0.005
+            blocked[ray_idx[hit]] = True
+            visible[i] = (~blocked).sum() / len(self.points)
+        return inside, visible
+
+    def above_floor(self, q: np.ndarray, clearance: float) -> np.ndarray:
+        """Every moving arm link origin stays clearance/2 above the floor (z = 0), the mount `clearance`."""
+        poses = self.robot.T_base_link(q)
+        z = np.stack([poses[name][:, 2, 3] for name in self.hulls if name in self.moving], 1)
+        ee_z = poses[self.robot.ee_root][:, 2, 3]
+        return (z.min(1) > clearance / 2) & (ee_z > clearance)

@@ -1,0 +1,153 @@
+"""Seeded domain randomisation: a preset (dict of ranges) + a seed -> a SegmentSpec.
+
+Everything here is pure numpy; the same (preset, config, scene_id, seed) gives the same spec.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from syneepose.errors import UserError
+from syneepose.scene.spec import SURFACE_KINDS, Distractor, Light, Plane, SegmentSpec, Surface
+from syneepose.transforms import make_T
+
+
+def rng_for(seed: int, config: str, scene_id: int) -> np.random.Generator:
+    """Independent stream per segment, stable across runs and machines."""
+    key = [seed, scene_id] + [ord(c) for c in config]
+    return np.random.default_rng(np.random.SeedSequence(key))
+
+
+def uniform(rng: np.random.Generator, r) -> float:
+    lo, hi = r
+    return float(rng.uniform(lo, hi))
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """OpenCV camera pose (z forward, y down) at `eye` looking at `target`."""
+    z = np.asarray(target, float) - np.asarray(eye, float)
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-6:
+        x = np.cross(z, (1.0, 0.0, 0.0))
+    x /= np.linalg.norm(x)
+    return make_T(np.stack([x, np.cross(z, x), z], 1), eye)
+
+
+def kelvin_to_rgb(kelvin: float) -> tuple[float, float, float]:
+    """Black-body colour (Tanner Helland's fit), normalised to max 1, in linear RGB."""
+    t = kelvin / 100.0
+    r = 255.0 if t <= 66 else 329.698727446 * (t - 60) ** -0.1332047592
+    g = 99.4708025861 * np.log(t) - 161.1195681661 if t <= 66 else 288.1221695283 * (t - 60) ** -0.0755148492
+    b = 255.0 if t >= 66 else (0.0 if t <= 19 else 138.5177312231 * np.log(t - 10) - 305.0447927307)
+    rgb = np.clip(np.array([r, g, b]) / 255.0, 0.0, 1.0)
+    rgb = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    return tuple(float(c) for c in rgb / rgb.max())
+
+
+def intrinsics(rng, preset: dict, width: int, height: int) -> np.ndarray:
+    """Square pixels; focal length from a horizontal field of view; principal point jittered."""
+    fov = np.deg2rad(uniform(rng, preset["camera"]["hfov_deg"]))
+    f = width / 2 / np.tan(fov / 2)
+    jitter = preset["camera"].get("principal_jitter", 0.0)
+    cx = (width - 1) / 2 + rng.uniform(-jitter, jitter) * width
+    cy = (height - 1) / 2 + rng.uniform(-jitter, jitter) * height
+    return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+
+
+def random_surface(rng, preset: dict) -> Surface:
+    kinds = preset["backdrop"].get("kinds", list(SURFACE_KINDS))
+    bad = set(kinds) - set(SURFACE_KINDS)
+    if bad:
+        raise UserError(f"preset backdrop kinds {sorted(bad)} unknown; use {', '.join(SURFACE_KINDS)}")
+    value = preset["backdrop"].get("value", [0.05, 0.8])
+    return Surface(
+        kind=str(rng.choice(kinds)),
+        color_a=tuple(float(c) for c in rng.uniform(*value, 3) ** 2.2),
+        color_b=tuple(float(c) for c in rng.uniform(*value, 3) ** 2.2),
+        scale=uniform(rng, preset["backdrop"].get("scale", [1.0, 20.0])),
+        roughness=uniform(rng, [0.2, 0.9]),
+    )
+
+
+def backdrop(rng, preset: dict, images: list[str]) -> list[Plane]:
+    """A floor under the robot and 0-3 walls around it, each with its own surface."""
+    size = preset["backdrop"].get("extent", 8.0)
+    planes = [Plane(make_T(t=[0.0, 0.0, -0.001]), (size, size), random_surface(rng, preset))]
+    n_walls = int(rng.integers(*preset["backdrop"].get("walls", [0, 3]), endpoint=True))
+    for k in rng.permutation(4)[:n_walls]:
+        yaw = k * np.pi / 2
+        distance = uniform(rng, preset["backdrop"].get("wall_distance", [1.5, 3.0]))
+        # The wall's normal (+z of the plane) faces the robot.
+        direction = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+        z = -direction
+        x = np.array([-np.sin(yaw), np.cos(yaw), 0.0])
+        R = make_T(np.stack([x, np.cross(z, x), z], 1), direction * distance + [0, 0, size / 4])
+        surface = random_surface(rng, preset)
+        if images and rng.random() < 0.5:
+            surface.image = str(rng.choice(images))
+        planes.append(Plane(R, (size, size / 2), surface))
+    return planes
+
+
+def lights(rng, preset: dict, target: np.ndarray) -> list[Light]:
+    p = preset["lights"]
+    out = []
+    for _ in range(int(rng.integers(*p["count"], endpoint=True))):
+        kind = str(rng.choice(p.get("kinds", ["AREA", "POINT", "SUN"])))
+        azimuth, elevation = rng.uniform(0, 2 * np.pi), np.deg2rad(uniform(rng, p.get("elevation_deg", [20, 80])))
+        distance = uniform(rng, p.get("distance", [1.5, 4.0]))
+        eye = target + distance * np.array([np.cos(azimuth) * np.cos(elevation),
+                                            np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
+        T = look_at(eye, target) @ np.diag([1.0, -1.0, -1.0, 1.0])  # Blender lights shine along -z
+        color = kelvin_to_rgb(uniform(rng, p.get("kelvin", [2700, 7500])))
+        if kind == "SUN":
+            energy, size = uniform(rng, p.get("sun_strength", [1.0, 5.0])), np.deg2rad(uniform(rng, [0.5, 10]))
+        else:
+            energy = uniform(rng, p.get("power_w", [100, 1000])) * distance ** 2 / 4
+            size = uniform(rng, [0.1, 1.0])
+        out.append(Light(kind, T, color, energy, size))
+    return out
+
+
+def distractors(rng, preset: dict, avoid: np.ndarray) -> list[Distractor]:
+    """Objects on the floor, kept away from the robot base and the end-effector path (xy)."""
+    p = preset.get("distractors", {"count": [0, 0]})
+    out = []
+    for _ in range(int(rng.integers(*p["count"], endpoint=True))):
+        for _attempt in range(20):
+            xy = rng.uniform(-1.5, 1.5, 2)
+            if np.linalg.norm(xy) > 0.3 and np.min(np.linalg.norm(avoid[:, :2] - xy, axis=1)) > 0.3:
+                break
+        size = uniform(rng, p.get("size", [0.05, 0.3]))
+        kind = str(rng.choice(["cube", "sphere", "cylinder", "torus"]))
+        T = make_T(t=[xy[0], xy[1], size / 2])
+        out.append(Distractor(kind, size, T, random_surface(rng, preset)))
+    return out
+
+
+def sample_segment(rng, preset: dict, robot, config: str, scene_id: int, seed: int, q: np.ndarray,
+                   width: int, height: int, samples: int, images: list[str] | None = None) -> SegmentSpec:
+    """Camera, lights and backdrop around a given arm trajectory `q` (see motion.py)."""
+    ee_path = robot.T_base_ee(q)[:, :3, 3]
+    target = ee_path.mean(0)
+    K = intrinsics(rng, preset, width, height)
+    cam = preset["camera"]
+    azimuth = np.deg2rad(uniform(rng, cam.get("azimuth_deg", [-180, 180])))
+    elevation = np.deg2rad(uniform(rng, cam.get("elevation_deg", [5, 60])))
+    distance = uniform(rng, cam["distance"])
+    eye = target + distance * np.array([np.cos(azimuth) * np.cos(elevation),
+                                        np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
+    eye[2] = max(eye[2], 0.05)
+    world = preset.get("world", {})
+    return SegmentSpec(
+        config=config, scene_id=scene_id, seed=seed, width=width, height=height, K=K,
+        T_base_cam=look_at(eye, target), q=q, samples=samples,
+        denoise=bool(preset.get("render", {}).get("denoise", False)),
+        max_bounces=int(preset.get("render", {}).get("max_bounces", 12)),
+        world_color=tuple(float(c) for c in rng.uniform(*world.get("value", [0.0, 0.3]), 3) ** 2.2),
+        world_strength=uniform(rng, world.get("strength", [0.2, 1.5])),
+        lights=lights(rng, preset, target),
+        planes=backdrop(rng, preset, images or []),
+        distractors=distractors(rng, preset, ee_path),
+    )
