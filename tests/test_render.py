@@ -123,7 +123,7 @@ def test_killed_render_resumes_to_the_same_result(rendered, tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
     ref = tmp_path / "ref"
-    assert subprocess.run([*cmd[:6], str(ref), *cmd[7:]], capture_output=True).returncode == 0
+    assert subprocess.run([*cmd[:7], str(ref), *cmd[8:]], capture_output=True).returncode == 0
     for name in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_robot.json"):
         assert (gt.parent / name).read_text() == (ref / "train" / gt.parent.name / name).read_text()
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]

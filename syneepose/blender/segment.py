@@ -13,7 +13,8 @@ from syneepose.robots.robot import Robot
 from syneepose.scene.spec import SegmentSpec
 from syneepose.transforms import inv_T
 
-BACKGROUND_DEPTH = 1e9  # Cycles writes 1e10 where a ray hits nothing
+MAX_DEPTH = 65535 * 0.1 / 1000.0  # metres: the uint16 depth PNG range at depth_scale 0.1; beyond -> 0,
+# as a real sensor reports out-of-range depth (Cycles writes 1e10 where a ray hits nothing)
 
 
 def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=None) -> int:
@@ -36,7 +37,7 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
         T_base_link = robot.T_base_link(q)
         objects.pose(T_base_link)
         out = bscene.render(Path(scene_dir))
-        depth = np.where(out["depth"] < BACKGROUND_DEPTH, out["depth"], 0.0)
+        depth = np.where(out["depth"] < MAX_DEPTH, out["depth"], 0.0)
         writer.write(Frame(
             im_id=i, rgb=linear_to_srgb8(out["rgb_linear"]), depth=depth,
             mask=out["ee_index"] == bscene.PASS_EE, mask_visib=out["index"] == bscene.PASS_EE,
