@@ -44,12 +44,7 @@ def _render(args) -> None:
     configs = load_catalog().parse_configs(args.robots)
     width, height = _resolution(args.resolution) if args.resolution else tuple(preset["resolution"])
     out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / ".write-probe").write_text("")
-        (out / ".write-probe").unlink()
-    except OSError as exc:
-        raise UserError(f"cannot write to --out {out}: {exc.strerror}") from exc
+    _writable(out)
     backgrounds = ()
     if args.backgrounds:
         folder = Path(args.backgrounds)
@@ -70,12 +65,59 @@ def _render(args) -> None:
     def report(job):
         bar.update(job.frames - done_before[job])
 
-    if args.executor == "ray":
-        J.run_ray(todo, args.ray_address, report)
-    else:
-        J.run_local(todo, args.workers, report)
+    _execute(args, J.run_job, todo, report)
     bar.close()
     print(f"render: {len(jobs)} segments in {out / J.SPLIT}")
+
+
+def _execute(args, fn, jobs, report) -> None:
+    from syneepose import jobs as J
+
+    if args.executor == "ray":
+        J.run_ray(fn, jobs, args.ray_address, report)
+    else:
+        J.run_local(fn, jobs, args.workers, report)
+
+
+def _writable(out: Path) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / ".write-probe").write_text("")
+        (out / ".write-probe").unlink()
+    except OSError as exc:
+        raise UserError(f"cannot write to --out {out}: {exc.strerror}") from exc
+
+
+def _templates(args) -> None:
+    from tqdm import tqdm
+
+    from syneepose import jobs as J
+    from syneepose import paths
+    from syneepose.robots.build import build_assets
+    from syneepose.robots.catalog import load_catalog
+
+    catalog = load_catalog()
+    preset = J.load_preset(args.preset)["templates"]
+    names = list(catalog.end_effectors) if not args.ee else [n.strip() for n in args.ee.split(",") if n.strip()]
+    for name in names:
+        catalog.end_effector(name)
+    out = Path(args.out)
+    _writable(out)
+    assets = paths.assets_dir()
+    build_assets(assets, [f"panda+{n}" for n in names], log=lambda *_: None)
+    jobs = [J.TemplateJob(n, str(out), args.views or int(preset["views"]), args.inplane or int(preset["inplane"]),
+                          args.resolution or int(preset["resolution"]), args.samples or int(preset["samples"]),
+                          str(assets)) for n in names]
+    done_before = {j: J.templates_done(j) for j in jobs}
+    bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="template",
+               desc="templates")
+
+    def report(job):
+        bar.update(job.frames - done_before[job])
+
+    _execute(args, J.run_template_job, [j for j in jobs if done_before[j] < j.frames], report)
+    bar.close()
+    print(f"templates: {len(jobs)} end-effectors in {out / 'templates'}")
 
 
 def main(argv=None) -> int:
@@ -101,6 +143,18 @@ def main(argv=None) -> int:
     r.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     r.add_argument("--workers", type=int, default=1, help="local worker processes (Cycles uses all cores)")
     r.set_defaults(func=_render)
+    t = sub.add_parser("templates", help="render the FEEPE templates of end-effectors")
+    t.add_argument("--out", required=True, help="data set root (templates go to <out>/templates/)")
+    t.add_argument("--preset", default="mini", help="preset whose `templates` section gives the defaults")
+    t.add_argument("--ee", help="comma-separated end-effectors (default: all 6)")
+    t.add_argument("--views", type=int, help="views on the Fibonacci sphere (paper: 80)")
+    t.add_argument("--inplane", type=int, help="in-plane rotations per view (paper: 12)")
+    t.add_argument("--resolution", type=int, help="square image size in pixels")
+    t.add_argument("--samples", type=int, help="Cycles samples per pixel")
+    t.add_argument("--executor", choices=["local", "ray"], default="local")
+    t.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
+    t.add_argument("--workers", type=int, default=1, help="local worker processes")
+    t.set_defaults(func=_templates)
     args = parser.parse_args(argv)
     try:
         args.func(args)

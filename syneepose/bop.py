@@ -49,19 +49,19 @@ def _image_paths(scene_dir: Path, im_id: int) -> dict[str, Path]:
             "mask": scene_dir / "mask" / mask_name, "mask_visib": scene_dir / "mask_visib" / mask_name}
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
+def write_atomic(path: Path, data: bytes) -> None:
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     tmp.write_bytes(data)
     os.replace(tmp, path)
 
 
-def _write_png(path: Path, image: np.ndarray) -> None:
+def write_png(path: Path, image: np.ndarray) -> None:
     """Encoded in memory: cv2.imwrite picks the format from the extension, which the temp name lacks."""
     _, buf = cv2.imencode(".png", image)
-    _write_atomic(path, buf.tobytes())
+    write_atomic(path, buf.tobytes())
 
 
-def _read_png(path: Path) -> np.ndarray:
+def read_png(path: Path) -> np.ndarray:
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise UserError(f"{path}: not a readable PNG; delete the scene folder and write it again")
@@ -144,10 +144,10 @@ class SceneWriter:
         meta, key = self.meta, str(frame.im_id)
         depth_png = _depth_png(frame, meta.depth_scale)
         paths = _image_paths(self.scene_dir, frame.im_id)
-        _write_png(paths["rgb"], cv2.cvtColor(np.ascontiguousarray(frame.rgb), cv2.COLOR_RGB2BGR))
-        _write_png(paths["depth"], depth_png)
+        write_png(paths["rgb"], cv2.cvtColor(np.ascontiguousarray(frame.rgb), cv2.COLOR_RGB2BGR))
+        write_png(paths["depth"], depth_png)
         for name in ("mask", "mask_visib"):
-            _write_png(paths[name], np.asarray(getattr(frame, name), dtype=bool).astype(np.uint8) * 255)
+            write_png(paths[name], np.asarray(getattr(frame, name), dtype=bool).astype(np.uint8) * 255)
 
         T_cam_base, T_cam_ee = np.asarray(meta.T_cam_base, dtype=float), np.asarray(frame.T_cam_ee, dtype=float)
         records = self._records
@@ -162,7 +162,7 @@ class SceneWriter:
             "T_base_ee": np.asarray(frame.T_base_ee, dtype=float).tolist()}
         for name in _JSONS:
             text = json.dumps(records[name], indent=2, sort_keys=True)
-            _write_atomic(self.scene_dir / f"{name}.json", text.encode())
+            write_atomic(self.scene_dir / f"{name}.json", text.encode())
 
 
 def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
@@ -190,9 +190,9 @@ def read_frame(scene_dir: Path, im_id: int) -> Frame:
     key, paths = str(im_id), _image_paths(scene_dir, im_id)
     camera, gt = records["scene_camera"][key], records["scene_gt"][key][GT_ID]
     robot = records["scene_robot"]["frames"][key]
-    return Frame(im_id=im_id, rgb=cv2.cvtColor(_read_png(paths["rgb"]), cv2.COLOR_BGR2RGB),
-                 depth=_read_png(paths["depth"]) * (camera["depth_scale"] / 1000.0),
-                 mask=_read_png(paths["mask"]) > 127, mask_visib=_read_png(paths["mask_visib"]) > 127,
+    return Frame(im_id=im_id, rgb=cv2.cvtColor(read_png(paths["rgb"]), cv2.COLOR_BGR2RGB),
+                 depth=read_png(paths["depth"]) * (camera["depth_scale"] / 1000.0),
+                 mask=read_png(paths["mask"]) > 127, mask_visib=read_png(paths["mask_visib"]) > 127,
                  K=np.array(camera["cam_K"], dtype=float).reshape(3, 3),
                  T_cam_ee=make_T(np.reshape(gt["cam_R_m2c"], (3, 3)), np.array(gt["cam_t_m2c"]) / 1000.0),
                  joint_positions=np.array(robot["joint_positions"], dtype=float),

@@ -10,6 +10,7 @@ import json
 import os
 import shutil
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from importlib.metadata import version
 from multiprocessing import get_context
@@ -116,7 +117,58 @@ def run_job(job: Job) -> int:
     points, _ = trimesh.sample.sample_surface(mesh, 300, seed=0)
     spec = plan_segment(preset, robot, Visibility(robot, points), job.scene_id, job.seed, job.frames,
                         job.width, job.height, job.samples, list(job.backgrounds))
-    return render_segment(spec, robot, job.scene_dir)
+    with _quiet_stdout():
+        return render_segment(spec, robot, job.scene_dir)
+
+
+@contextmanager
+def _quiet_stdout():
+    """Blender prints a line per rendered image on the C-level stdout: keep the progress bar readable."""
+    saved = os.dup(1)
+    with open(os.devnull, "w") as devnull:
+        os.dup2(devnull.fileno(), 1)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+
+
+@dataclass(frozen=True)
+class TemplateJob:
+    ee: str
+    out: str
+    views: int
+    inplane: int
+    resolution: int
+    samples: int
+    assets: str
+
+    @property
+    def folder(self) -> Path:
+        from syneepose.templates import set_dir
+
+        return set_dir(Path(self.out), self.ee, self.views, self.inplane, self.resolution)
+
+    @property
+    def frames(self) -> int:
+        return self.views * self.inplane
+
+
+def templates_done(job: TemplateJob) -> int:
+    try:
+        return len(json.loads((job.folder / "templates.json").read_text()))
+    except (OSError, ValueError):
+        return 0
+
+
+def run_template_job(job: TemplateJob) -> int:
+    from syneepose.blender.templates import render_templates
+
+    ee = load_catalog().end_effector(job.ee)
+    with _quiet_stdout():
+        return render_templates(ee, paths.part_urdf(job.ee, Path(job.assets)), job.folder, job.views, job.inplane,
+                                job.resolution, job.samples)
 
 
 def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: list[str], assets: Path) -> None:
@@ -142,20 +194,22 @@ def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: li
         os.replace(staging, models)
 
 
-def run_local(jobs: list[Job], workers: int, progress) -> None:
+def run_local(fn, jobs: list, workers: int, progress) -> None:
+    """Each job in a fresh spawned process (bpy leaks memory over long loops)."""
     ctx = get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1) as pool:
-        futures = [(job, pool.submit(run_job, job)) for job in jobs]
+        futures = [(job, pool.submit(fn, job)) for job in jobs]
         for job, future in futures:
             future.result()
             progress(job)
 
 
-def run_ray(jobs: list[Job], address: str | None, progress) -> None:
+def run_ray(fn, jobs: list, address: str | None, progress) -> None:
+    """Jobs as Ray tasks on an existing cluster (`address`) or a local instance."""
     import ray
 
     ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-    remote = ray.remote(max_retries=2)(run_job)
+    remote = ray.remote(max_retries=2)(fn)
     pending = {remote.remote(job): job for job in jobs}
     while pending:
         done, _ = ray.wait(list(pending), num_returns=1)

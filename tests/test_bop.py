@@ -153,14 +153,14 @@ def test_killed_between_json_writes_is_not_done(tmp_path, monkeypatch):
     """All images of frame 1 and some JSONs on disk, then a kill: frame 1 is not done and is redone."""
     writer = SceneWriter(tmp_path, _meta())
     writer.write(_frame(0))
-    real_write = bop._write_atomic
+    real_write = bop.write_atomic
 
     def killed_at_gt_info(path, data):
         if path.name == "scene_gt_info.json":
             raise KeyboardInterrupt
         real_write(path, data)
 
-    monkeypatch.setattr(bop, "_write_atomic", killed_at_gt_info)
+    monkeypatch.setattr(bop, "write_atomic", killed_at_gt_info)
     with pytest.raises(KeyboardInterrupt):
         writer.write(_frame(1))
     monkeypatch.undo()

@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
@@ -154,3 +155,27 @@ def test_bad_preset_key_and_unwritable_out(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "syneepose", "render", "--out", str(blocker / "x")],
                           capture_output=True, text=True)
     assert proc.returncode == 2 and "cannot write" in proc.stderr
+
+
+def test_templates_reproject_onto_their_masks(tmp_path, assets):
+    from syneepose.templates import read_index, read_template, set_dir
+
+    proc = subprocess.run([sys.executable, "-m", "syneepose", "templates", "--out", str(tmp_path), "--ee",
+                           "robotiq_2f85,kinova_3f", "--views", "3", "--inplane", "2", "--resolution", "48",
+                           "--samples", "2"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for ee, obj_id in (("robotiq_2f85", 2), ("kinova_3f", 4)):
+        folder = set_dir(tmp_path, ee, 3, 2, 48)
+        assert len(read_index(folder)) == 6
+        mesh = trimesh.load(Path("assets/models") / f"obj_{obj_id:06d}.ply", process=False)
+        mesh.apply_scale(0.001)
+        for i in range(6):
+            t = read_template(folder, i)
+            z = _raycast(mesh, t.T_cam_model, t.K, 48, 48)
+            hit = np.isfinite(z)
+            assert (hit & t.mask).sum() / (hit | t.mask).sum() >= 0.95
+            assert np.median(np.abs(t.depth[hit & t.mask] - z[hit & t.mask])) < 1e-3
+            near = cv2.dilate(t.mask.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0  # anti-aliased rim
+            assert (t.rgb[~near] == 0).all()  # black background
+            centre = np.argwhere(t.mask).mean(0)
+            assert np.abs(centre - 23.5).max() < 8  # object centred

@@ -17,25 +17,28 @@ import trimesh
 
 from syneepose.blender.exr import read_passes, srgb_to_linear
 from syneepose.robots.model import RobotModel
-from syneepose.scene.spec import Distractor, Light, Plane, SegmentSpec, Surface
+from syneepose.scene.spec import Distractor, Light, Plane, Surface
 
 PASS_EE, PASS_ARM = 1, 2
 MAIN, EE_ONLY = "main", "ee_only"
 BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
-def reset(spec: SegmentSpec) -> None:
+def reset(width: int, height: int, samples: int, denoise: bool = False, max_bounces: int = 12,
+          world_color=(0.05, 0.05, 0.05), world_strength: float = 1.0, transparent: bool = False) -> None:
+    """Empty Cycles scene; `transparent` renders the background black (templates)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
-    scene.cycles.samples = spec.samples
+    scene.cycles.samples = samples
     scene.cycles.use_adaptive_sampling = False
-    scene.cycles.use_denoising = spec.denoise
-    scene.cycles.max_bounces = spec.max_bounces
+    scene.cycles.use_denoising = denoise
+    scene.cycles.max_bounces = max_bounces
     scene.cycles.seed = 0
+    scene.render.film_transparent = transparent
     scene.render.use_persistent_data = True
-    scene.render.resolution_x, scene.render.resolution_y = spec.width, spec.height
+    scene.render.resolution_x, scene.render.resolution_y = width, height
     scene.render.resolution_percentage = 100
     scene.render.dither_intensity = 0.0
     scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
@@ -56,8 +59,8 @@ def reset(spec: SegmentSpec) -> None:
     scene.world = world
     world.use_nodes = True
     background = world.node_tree.nodes["Background"]
-    background.inputs["Color"].default_value = (*spec.world_color, 1.0)
-    background.inputs["Strength"].default_value = spec.world_strength
+    background.inputs["Color"].default_value = (*world_color, 1.0)
+    background.inputs["Strength"].default_value = world_strength
 
 
 def set_camera(K: np.ndarray, width: int, height: int, T_base_cam: np.ndarray) -> None:
@@ -74,8 +77,12 @@ def set_camera(K: np.ndarray, width: int, height: int, T_base_cam: np.ndarray) -
     scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = (1.0, fx / fy) if fx >= fy else (fy / fx, 1.0)
     cam = bpy.data.objects.new("camera", data)
     scene.collection.objects.link(cam)
-    cam.matrix_world = (T_base_cam @ BLENDER_FROM_OPENCV).T.tolist()
     scene.camera = cam
+    move_camera(T_base_cam)
+
+
+def move_camera(T_base_cam: np.ndarray) -> None:
+    bpy.context.scene.camera.matrix_world = (T_base_cam @ BLENDER_FROM_OPENCV).T.tolist()
 
 
 def _mesh(name: str, vertices: np.ndarray, faces: np.ndarray, smooth_angle: float | None = 0.6):

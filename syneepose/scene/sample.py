@@ -102,9 +102,9 @@ def lights(rng, preset: dict, target: np.ndarray) -> list[Light]:
         T = look_at(eye, target) @ np.diag([1.0, -1.0, -1.0, 1.0])  # Blender lights shine along -z
         color = kelvin_to_rgb(uniform(rng, p.get("kelvin", [2700, 7500])))
         if kind == "SUN":
-            energy, size = uniform(rng, p.get("sun_strength", [1.0, 5.0])), np.deg2rad(uniform(rng, [0.5, 10]))
+            energy, size = uniform(rng, p.get("sun_strength", [0.5, 3.0])), np.deg2rad(uniform(rng, [0.5, 10]))
         else:
-            energy = uniform(rng, p.get("power_w", [100, 1000])) * distance ** 2 / 4
+            energy = uniform(rng, p.get("power_w", [40, 300])) * (distance / 2.0) ** 2
             size = uniform(rng, [0.1, 1.0])
         out.append(Light(kind, T, color, energy, size))
     return out

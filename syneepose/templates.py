@@ -1,0 +1,87 @@
+"""FEEPE templates: views on a Fibonacci sphere x in-plane rotations, object centred (pure numpy).
+
+Rendering lives in `syneepose/blender/templates.py`; this module decides poses and intrinsics and
+reads a template set back. A set is one folder per end-effector with BOP-style files:
+`rgb/`, `depth/`, `mask/` (`<id:06d>.png`) and `templates.json` ({id: cam_K, T_cam_model, view, inplane}).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from syneepose.bop import read_png
+from syneepose.errors import UserError
+from syneepose.scene.sample import look_at
+from syneepose.transforms import inv_T, make_T
+
+FOV_DEG = 30.0
+FILL = 0.9  # the bounding sphere spans this fraction of the image width
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """n nearly uniform unit vectors (golden-angle spiral)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(1.0 - z**2)
+    phi = np.pi * (1.0 + 5.0**0.5) * i
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
+
+
+def intrinsics(resolution: int) -> np.ndarray:
+    f = resolution / 2 / np.tan(np.deg2rad(FOV_DEG) / 2)
+    c = (resolution - 1) / 2
+    return np.array([[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]])
+
+
+def poses(n_views: int, n_inplane: int, center: np.ndarray, radius: float) -> list[tuple[int, int, np.ndarray]]:
+    """(view, inplane, T_cam_model) with the model's bounding-sphere centre on the optical axis."""
+    distance = radius / np.sin(np.deg2rad(FOV_DEG) / 2 * FILL)
+    out = []
+    for v, direction in enumerate(fibonacci_sphere(n_views)):
+        up = (0.0, 0.0, 1.0) if abs(direction[2]) < 0.99 else (1.0, 0.0, 0.0)
+        T_model_cam = look_at(center + distance * direction, center, up)
+        for k in range(n_inplane):
+            a = 2 * np.pi * k / n_inplane
+            roll = make_T(np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]]))
+            out.append((v, k, inv_T(T_model_cam @ roll)))
+    return out
+
+
+@dataclass
+class Template:
+    id: int
+    view: int
+    inplane: int
+    K: np.ndarray
+    T_cam_model: np.ndarray
+    rgb: np.ndarray
+    depth: np.ndarray  # metres, 0 off the object
+    mask: np.ndarray
+
+
+def set_dir(root: Path, ee: str, n_views: int, n_inplane: int, resolution: int) -> Path:
+    return Path(root) / "templates" / f"{ee}_{n_views}x{n_inplane}_{resolution}px"
+
+
+def read_index(folder: Path) -> dict:
+    path = Path(folder) / "templates.json"
+    if not path.is_file():
+        raise UserError(f"no template set at {folder}: render it with `python -m syneepose templates`")
+    return json.loads(path.read_text())
+
+
+def read_template(folder: Path, template_id: int) -> Template:
+    index = read_index(folder)
+    rec = index.get(str(template_id))
+    if rec is None:
+        raise UserError(f"{folder}: no template {template_id}")
+    name = f"{template_id:06d}.png"
+    rgb = read_png(Path(folder) / "rgb" / name)[..., ::-1]
+    return Template(template_id, rec["view"], rec["inplane"], np.array(rec["cam_K"]).reshape(3, 3),
+                    np.array(rec["T_cam_model"]), np.ascontiguousarray(rgb),
+                    read_png(Path(folder) / "depth" / name) * (rec["depth_scale"] / 1000.0),
+                    read_png(Path(folder) / "mask" / name) > 127)

@@ -1,0 +1,66 @@
+"""Pure sampling code: seeded, within ranges, geometry conventions."""
+
+import numpy as np
+import pytest
+
+from syneepose.errors import UserError
+from syneepose.jobs import load_preset, make_jobs, parse_shard
+from syneepose.scene.motion import min_jerk, trajectory
+from syneepose.scene.sample import kelvin_to_rgb, look_at, rng_for
+from syneepose.templates import fibonacci_sphere, poses
+
+
+def test_look_at_points_the_optical_axis():
+    T = look_at([1.0, 2.0, 3.0], [0.0, 0.0, 0.0])
+    np.testing.assert_allclose(T[:3, 2], -np.array([1, 2, 3]) / np.linalg.norm([1, 2, 3]))
+    np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(T[:3, :3]) == pytest.approx(1.0)
+    assert T[2, 1] < 0  # image y (down) points away from the world up
+
+
+def test_min_jerk_and_trajectory_limits():
+    s = np.linspace(0, 1, 101)
+    assert min_jerk(s)[0] == 0 and min_jerk(s)[-1] == pytest.approx(1)
+    assert (np.diff(min_jerk(s)) >= 0).all()
+    limits = [(-1.0, 1.0), (0.0, 0.5)]
+    q = trajectory(np.random.default_rng(0), [0.0, 0.25], limits, 50, 4, 2.0)
+    assert q.shape == (50, 2)
+    assert (q[:, 0] >= -1).all() and (q[:, 0] <= 1).all() and (q[:, 1] >= 0).all() and (q[:, 1] <= 0.5).all()
+    assert np.abs(np.diff(q, axis=0)).max() < 0.5  # smooth: no jumps between frames
+
+
+def test_seeded_streams():
+    a = rng_for(0, "ur5e+robotiq_2f85", 3).random(4)
+    assert np.array_equal(a, rng_for(0, "ur5e+robotiq_2f85", 3).random(4))
+    assert not np.array_equal(a, rng_for(1, "ur5e+robotiq_2f85", 3).random(4))
+    assert not np.array_equal(a, rng_for(0, "ur5e+robotiq_2f85", 4).random(4))
+
+
+def test_kelvin_colours():
+    warm, cold = kelvin_to_rgb(2700), kelvin_to_rgb(7500)
+    assert warm[0] == 1.0 and warm[2] < warm[1] < 1.0
+    assert cold[2] == 1.0 and cold[0] < 1.0
+
+
+def test_fibonacci_templates_cover_the_sphere():
+    v = fibonacci_sphere(80)
+    np.testing.assert_allclose(np.linalg.norm(v, axis=1), 1.0)
+    assert np.abs(v.mean(0)).max() < 0.02
+    p = poses(80, 12, np.zeros(3), 0.1)
+    assert len(p) == 960
+    for _, _, T in p[:24]:  # the model centre lies on the optical axis
+        c = T[:3, 3]
+        assert abs(c[0]) < 1e-9 and abs(c[1]) < 1e-9 and c[2] > 0
+
+
+def test_scene_ids_are_stable_across_subsets_and_shards(tmp_path):
+    preset = load_preset("mini")
+    full = make_jobs("mini", preset, tmp_path, ["panda+panda_hand", "ur5e+robotiq_2f85"], 0, 2, 4, 64, 48, 2, tmp_path)
+    subset = make_jobs("mini", preset, tmp_path, ["ur5e+robotiq_2f85"], 0, 2, 4, 64, 48, 2, tmp_path)
+    assert {j.scene_id for j in subset} <= {j.scene_id for j in full}
+    shards = [make_jobs("mini", preset, tmp_path, ["panda+panda_hand", "ur5e+robotiq_2f85"], 0, 2, 4, 64, 48, 2,
+                        tmp_path, shard=(i, 3)) for i in range(3)]
+    assert sorted(j.scene_id for s in shards for j in s) == sorted(j.scene_id for j in full)
+    assert parse_shard("1/3") == (1, 3)
+    with pytest.raises(UserError):
+        parse_shard("3/3")
