@@ -1,4 +1,4 @@
-# Two commands on a fresh machine: `make assets` (the main job available today) and `make test`.
+# Two commands on a fresh machine: `make dataset` (the mini data set) and `make test`.
 # Everything runs inside .venv, which the first target that needs it creates.
 
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
@@ -20,15 +20,18 @@ $(STAMP): requirements.txt pyproject.toml
 assets: setup
 	$(PY) -m syneepose assets
 
+DATA ?= data/mini
+
 dataset: assets
-	@echo "make dataset: the renderer (issue 3) has not landed yet; 'make assets' built the robots." >&2
-	@exit 1
+	$(PY) -m syneepose render --preset mini --out $(DATA)
+	$(PY) -m syneepose templates --preset mini --out $(DATA)
 
 test: assets
 	$(PY) -m pytest -x -q
 
 bench: assets
 	$(PY) benchmarks/assets_build.py
+	$(PY) benchmarks/render.py
 
 clean-assets:
 	rm -rf assets

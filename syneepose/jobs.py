@@ -209,7 +209,7 @@ def run_ray(fn, jobs: list, address: str | None, progress) -> None:
     import ray
 
     ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-    remote = ray.remote(max_retries=2)(fn)
+    remote = ray.remote(max_retries=2, max_calls=1)(fn)  # a fresh worker process per job, as locally
     pending = {remote.remote(job): job for job in jobs}
     while pending:
         done, _ = ray.wait(list(pending), num_returns=1)

@@ -179,3 +179,11 @@ def test_templates_reproject_onto_their_masks(tmp_path, assets):
             assert (t.rgb[~near] == 0).all()  # black background
             centre = np.argwhere(t.mask).mean(0)
             assert np.abs(centre - 23.5).max() < 8  # object centred
+
+
+def test_ray_executor_matches_local(rendered, tmp_path):
+    out = tmp_path / "ray"
+    proc = _render(out, "--frames", "2", "--robots", CONFIGS[1], "--executor", "ray")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    [scene] = _scenes(out)
+    assert (scene / "scene_gt.json").read_text() == (rendered / "train" / scene.name / "scene_gt.json").read_text()

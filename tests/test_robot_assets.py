@@ -96,3 +96,12 @@ def test_bop_models(assets, catalog):
         assert info["diameter"] >= np.linalg.norm(hi - lo) * 0.5
         assert mesh.visual.vertex_colors.shape == (len(mesh.vertices), 4)
         assert ("symmetries_discrete" in info) == any(order > 0 for _, order in ee.symmetries)
+
+
+def test_subset_build_keeps_every_model(tmp_path, catalog):
+    out = tmp_path / "assets"
+    build_assets(out, ["ur5e+robotiq_2f85"], log=lambda *_: None)
+    infos = json.loads((paths.models_dir(out) / "models_info.json").read_text())
+    assert len(infos) == len(catalog.end_effectors)
+    assert paths.config_urdf("ur5e+robotiq_2f85", out).is_file()
+    assert not paths.config_urdf("panda+robotiq_2f85", out).exists()

@@ -121,9 +121,10 @@ def build_assets(out: Path | None = None, configs: list[str] | None = None, forc
         raise UserError(f"cannot write the assets folder {out}: {exc.strerror}; choose another with --out") from exc
     report = BuildReport()
 
-    parts: dict[str, Part] = {}
-    for arm, ee in pairs:
-        parts[arm.name], parts[ee.name] = arm, ee
+    # Every end-effector is always built: models/ must hold all of them whatever subset is assembled.
+    parts: dict[str, Part] = dict(catalog.end_effectors)
+    for arm, _ in pairs:
+        parts[arm.name] = arm
     recipes = {name: part_recipe(catalog, p) for name, p in parts.items()}
     for name, part in parts.items():
         if not force and _read_stamp(paths.part_dir(name, out)).get("recipe") == recipes[name]:
@@ -150,7 +151,7 @@ def build_assets(out: Path | None = None, configs: list[str] | None = None, forc
         ee_models.write_json(stamps, robots / STAMP)
         log(f"assembled {len(report.configs)} configurations")
 
-    ees = sorted({ee.name: ee for _, ee in pairs}.values(), key=lambda e: e.obj_id)
+    ees = sorted(catalog.end_effectors.values(), key=lambda e: e.obj_id)
     models = paths.models_dir(out)
     recipe = _hash([recipes[e.name] for e in ees], _code_hash(MODEL_CODE))
     if force or _read_stamp(models).get("recipe") != recipe:

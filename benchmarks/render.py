@@ -1,0 +1,95 @@
+"""Render benchmark: seconds per frame at 640x480 / 16 spp on a fixed scene, our overhead over a bare
+Cycles render of the same scene, and resident memory over a 300-frame segment.
+
+Prints figures, asserts nothing: `make bench` or `.venv/bin/python benchmarks/render.py [--quick]`.
+"""
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from syneepose import paths
+from syneepose.blender import scene as bscene
+from syneepose.blender.segment import render_segment
+from syneepose.jobs import load_preset
+from syneepose.robots.ee_models import load_ee_mesh
+from syneepose.robots.robot import load_robot
+from syneepose.scene.motion import Visibility
+from syneepose.scene.plan import plan_segment
+
+CONFIG = "ur5e+robotiq_2f85"
+
+
+def rss_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def spec_for(frames: int, width: int, height: int, samples: int):
+    robot = load_robot(CONFIG)
+    points, _ = trimesh.sample.sample_surface(load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name)), 300, seed=0)
+    preset = load_preset("mini")
+    preset["render"] = {"denoise": False, "max_bounces": 12}
+    return robot, plan_segment(preset, robot, Visibility(robot, points), 0, 0, frames, width, height, samples)
+
+
+def bare_cycles(robot, spec, frames: int) -> float:
+    """The same scene and poses, timing only bpy's render call (no FK, EXR read, PNG or JSON)."""
+    import bpy
+
+    bscene.reset(spec.width, spec.height, spec.samples, spec.denoise, spec.max_bounces, spec.world_color,
+                 spec.world_strength)
+    bscene.set_camera(spec.K, spec.width, spec.height, spec.T_base_cam)
+    bscene.add_lights(spec.lights)
+    bscene.add_planes(spec.planes)
+    bscene.add_distractors(spec.distractors)
+    objects = bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
+    poses = [robot.T_base_link(q) for q in spec.q]
+    with tempfile.TemporaryDirectory() as tmp:
+        bpy.context.scene.render.filepath = str(Path(tmp) / "bare.exr")
+        t0 = time.perf_counter()
+        for i in range(frames):
+            objects.pose(poses[i])
+            bpy.ops.render.render(write_still=True)
+        return (time.perf_counter() - t0) / frames
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--quick", action="store_true", help="3 frames and a 60-frame memory run")
+    args = parser.parse_args()
+    frames = 3 if args.quick else 6
+    robot, spec = spec_for(frames, 640, 480, 16)
+    with tempfile.TemporaryDirectory() as tmp:
+        render_segment(spec, robot, Path(tmp) / "warm", None)  # first frame includes scene build
+        t0 = time.perf_counter()
+        render_segment(spec, robot, Path(tmp) / "timed", None)
+        ours = (time.perf_counter() - t0) / frames
+    bare = bare_cycles(robot, spec, frames)
+    print(f"640x480, 16 spp, {frames} frames, {CONFIG}: ours {ours:.2f} s/frame (incl. scene build), "
+          f"bare Cycles {bare:.2f} s/frame, overhead {100 * (ours - bare) / bare:+.1f} %")
+
+    n = 60 if args.quick else 300
+    robot, spec = spec_for(n, 160, 120, 1)
+    marks = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        done = [0]
+
+        def progress(_):
+            done[0] += 1
+            if done[0] in (1, n // 3, 2 * n // 3, n):
+                marks[done[0]] = rss_mb()
+
+        render_segment(spec, robot, Path(tmp) / "memory", progress)
+    print(f"resident memory over a {n}-frame segment (160x120, 1 spp): "
+          + ", ".join(f"frame {k}: {v:.0f} MB" for k, v in sorted(marks.items())))
+
+
+if __name__ == "__main__":
+    main()
