@@ -10,7 +10,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from syneepose import paths
 from syneepose.blender import scene as bscene
@@ -18,7 +17,7 @@ from syneepose.blender.segment import render_segment
 from syneepose.jobs import load_preset
 from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.robot import load_robot
-from syneepose.scene.motion import Visibility
+from syneepose.scene.motion import MotionChecks
 from syneepose.scene.plan import plan_segment
 
 CONFIG = "ur5e+robotiq_2f85"
@@ -33,10 +32,10 @@ def rss_mb() -> float:
 
 def spec_for(frames: int, width: int, height: int, samples: int):
     robot = load_robot(CONFIG)
-    points, _ = trimesh.sample.sample_surface(load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name)), 300, seed=0)
+    mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name))
     preset = load_preset("mini")
     preset["render"] = {"denoise": False, "max_bounces": 12}
-    return robot, plan_segment(preset, robot, Visibility(robot, points), 0, 0, frames, width, height, samples)
+    return robot, plan_segment(preset, robot, MotionChecks(robot, mesh), 0, 0, frames, width, height, samples)
 
 
 def bare_cycles(robot, spec, frames: int) -> float:

@@ -56,7 +56,7 @@ def _render(args) -> None:
     jobs = J.make_jobs(args.preset, preset, out, configs, args.seed,
                        args.segments or int(preset["segments"]), args.frames or int(preset["frames"]),
                        width, height, args.samples or int(preset["samples"]), assets, backgrounds,
-                       J.parse_shard(args.shard))
+                       J.parse_shard(args.shard), args.device)
     J.write_dataset_info(out, args.preset, jobs, configs, assets)
     done_before = {j: J.frames_done(j) for j in jobs}
     todo = [j for j in jobs if done_before[j] < j.frames]
@@ -65,18 +65,24 @@ def _render(args) -> None:
     def report(job):
         bar.update(job.frames - done_before[job])
 
-    _execute(args, J.run_job, todo, report)
-    bar.close()
+    _execute(args, J.run_job, todo, report, bar)
     print(f"render: {len(jobs)} segments in {out / J.SPLIT}")
 
 
-def _execute(args, fn, jobs, report) -> None:
+def _execute(args, fn, jobs, report, bar) -> None:
+    """Run the jobs; on failure the progress bar is wiped so the error is the last line."""
     from syneepose import jobs as J
 
-    if args.executor == "ray":
-        J.run_ray(fn, jobs, args.ray_address, report)
-    else:
-        J.run_local(fn, jobs, args.workers, report)
+    try:
+        if args.executor == "ray":
+            J.run_ray(fn, jobs, args.ray_address, report)
+        else:
+            J.run_local(fn, jobs, args.workers, report)
+    except BaseException:
+        bar.leave = False
+        raise
+    finally:
+        bar.close()
 
 
 def _writable(out: Path) -> None:
@@ -107,7 +113,7 @@ def _templates(args) -> None:
     build_assets(assets, [f"panda+{n}" for n in names], log=lambda *_: None)
     jobs = [J.TemplateJob(n, str(out), args.views or int(preset["views"]), args.inplane or int(preset["inplane"]),
                           args.resolution or int(preset["resolution"]), args.samples or int(preset["samples"]),
-                          str(assets)) for n in names]
+                          str(assets), args.device) for n in names]
     done_before = {j: J.templates_done(j) for j in jobs}
     bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="template",
                desc="templates")
@@ -115,8 +121,7 @@ def _templates(args) -> None:
     def report(job):
         bar.update(job.frames - done_before[job])
 
-    _execute(args, J.run_template_job, [j for j in jobs if done_before[j] < j.frames], report)
-    bar.close()
+    _execute(args, J.run_template_job, [j for j in jobs if done_before[j] < j.frames], report, bar)
     print(f"templates: {len(jobs)} end-effectors in {out / 'templates'}")
 
 
@@ -139,6 +144,7 @@ def main(argv=None) -> int:
     r.add_argument("--samples", type=int, help="Cycles samples per pixel (preset default)")
     r.add_argument("--backgrounds", help="folder of images to put on walls at random")
     r.add_argument("--shard", help="i/N: render every N-th segment starting at i (cluster job arrays)")
+    r.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
     r.add_argument("--executor", choices=["local", "ray"], default="local")
     r.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     r.add_argument("--workers", type=int, default=1, help="local worker processes (Cycles uses all cores)")
@@ -151,6 +157,7 @@ def main(argv=None) -> int:
     t.add_argument("--inplane", type=int, help="in-plane rotations per view (paper: 12)")
     t.add_argument("--resolution", type=int, help="square image size in pixels")
     t.add_argument("--samples", type=int, help="Cycles samples per pixel")
+    t.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
     t.add_argument("--executor", choices=["local", "ray"], default="local")
     t.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     t.add_argument("--workers", type=int, default=1, help="local worker processes")

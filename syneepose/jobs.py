@@ -62,6 +62,7 @@ class Job:
     preset: str
     assets: str
     backgrounds: tuple[str, ...] = ()
+    device: str = "cpu"
 
     @property
     def scene_dir(self) -> Path:
@@ -82,14 +83,14 @@ def parse_shard(text: str | None) -> tuple[int, int]:
 
 def make_jobs(preset_name: str, preset: dict, out: Path, configs: list[str], seed: int, segments: int,
               frames: int, width: int, height: int, samples: int, assets: Path,
-              backgrounds: tuple[str, ...] = (), shard: tuple[int, int] = (0, 1)) -> list[Job]:
+              backgrounds: tuple[str, ...] = (), shard: tuple[int, int] = (0, 1), device: str = "cpu") -> list[Job]:
     all_configs = load_catalog().configurations
     jobs = []
     for config in configs:
         for segment in range(segments):
             scene_id = all_configs.index(config) * segments + segment
             jobs.append(Job(config, scene_id, segment, seed, frames, width, height, samples, str(out), preset_name,
-                            str(assets), backgrounds))
+                            str(assets), backgrounds, device))
     i, n = shard
     return jobs[i::n]
 
@@ -103,20 +104,18 @@ def frames_done(job: Job) -> int:
 
 def run_job(job: Job) -> int:
     """Worker entry point (fresh process): plan the segment, then render what is missing."""
-    import trimesh
-
     from syneepose.blender.segment import render_segment
     from syneepose.robots.ee_models import load_ee_mesh
     from syneepose.robots.robot import load_robot
-    from syneepose.scene.motion import Visibility
+    from syneepose.scene.motion import MotionChecks
     from syneepose.scene.plan import plan_segment
 
     preset = load_preset(job.preset)
     robot = load_robot(job.config, Path(job.assets))
     mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name, Path(job.assets)))
-    points, _ = trimesh.sample.sample_surface(mesh, 300, seed=0)
-    spec = plan_segment(preset, robot, Visibility(robot, points), job.scene_id, job.seed, job.frames,
+    spec = plan_segment(preset, robot, MotionChecks(robot, mesh), job.scene_id, job.seed, job.frames,
                         job.width, job.height, job.samples, list(job.backgrounds))
+    spec.device = job.device
     with _quiet_stdout():
         return render_segment(spec, robot, job.scene_dir)
 
@@ -143,6 +142,7 @@ class TemplateJob:
     resolution: int
     samples: int
     assets: str
+    device: str = "cpu"
 
     @property
     def folder(self) -> Path:
@@ -168,7 +168,7 @@ def run_template_job(job: TemplateJob) -> int:
     ee = load_catalog().end_effector(job.ee)
     with _quiet_stdout():
         return render_templates(ee, paths.part_urdf(job.ee, Path(job.assets)), job.folder, job.views, job.inplane,
-                                job.resolution, job.samples)
+                                job.resolution, job.samples, job.device)
 
 
 def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: list[str], assets: Path) -> None:

@@ -187,3 +187,9 @@ def test_ray_executor_matches_local(rendered, tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     [scene] = _scenes(out)
     assert (scene / "scene_gt.json").read_text() == (rendered / "train" / scene.name / "scene_gt.json").read_text()
+
+
+def test_gpu_request_without_gpu_is_one_clear_line(tmp_path, assets):
+    proc = _render(tmp_path, "--frames", "1", "--robots", CONFIGS[1], "--device", "gpu")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "no GPU" in proc.stderr.strip().splitlines()[-1]

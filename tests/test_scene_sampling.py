@@ -64,3 +64,40 @@ def test_scene_ids_are_stable_across_subsets_and_shards(tmp_path):
     assert parse_shard("1/3") == (1, 3)
     with pytest.raises(UserError):
         parse_shard("3/3")
+
+
+@pytest.fixture(scope="module")
+def ur5e_checks(assets):
+    from syneepose import paths
+    from syneepose.robots.ee_models import load_ee_mesh
+    from syneepose.robots.robot import load_robot
+    from syneepose.scene.motion import MotionChecks
+
+    robot = load_robot("ur5e+robotiq_2f85")
+    return robot, MotionChecks(robot, load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name)))
+
+
+def test_self_collision_known_poses(ur5e_checks):
+    robot, checks = ur5e_checks
+    home = np.array(robot.arm.home)
+    folded = home.copy()
+    folded[2] = 3.1  # elbow folded back: the forearm passes through the upper arm
+    assert not checks.self_collision(home[None])[0]
+    assert checks.self_collision(folded[None])[0]
+
+
+def test_planned_segment_meets_every_rule(ur5e_checks):
+    from syneepose.scene.plan import plan_segment
+
+    robot, checks = ur5e_checks
+    preset = load_preset("mini")
+    spec = plan_segment(preset, robot, checks, 5, 0, 12, 64, 48, 2)
+    again = plan_segment(preset, robot, checks, 5, 0, 12, 64, 48, 2)
+    np.testing.assert_array_equal(spec.q, again.q)
+    np.testing.assert_array_equal(spec.T_base_cam, again.T_base_cam)
+    assert not checks.self_collision(spec.q).any()
+    assert checks.above_floor(spec.q, 0.1).all()
+    inside, visible = checks.check(spec.q, spec.T_base_cam, spec.K, 64, 48)
+    assert (inside >= 0.999).all() and (visible >= preset["camera"]["min_visible"]).all()
+    lo, hi = np.array(robot.arm.limits).T
+    assert ((spec.q >= lo) & (spec.q <= hi)).all()

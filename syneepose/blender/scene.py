@@ -16,6 +16,7 @@ import numpy as np
 import trimesh
 
 from syneepose.blender.exr import read_passes, srgb_to_linear
+from syneepose.errors import UserError
 from syneepose.robots.model import RobotModel
 from syneepose.scene.spec import Distractor, Light, Plane, Surface
 
@@ -25,12 +26,13 @@ BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 def reset(width: int, height: int, samples: int, denoise: bool = False, max_bounces: int = 12,
-          world_color=(0.05, 0.05, 0.05), world_strength: float = 1.0, transparent: bool = False) -> None:
+          world_color=(0.05, 0.05, 0.05), world_strength: float = 1.0, transparent: bool = False,
+          device: str = "cpu") -> None:
     """Empty Cycles scene; `transparent` renders the background black (templates)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
+    scene.cycles.device = "GPU" if device == "gpu" and _enable_gpu() else "CPU"
     scene.cycles.samples = samples
     scene.cycles.use_adaptive_sampling = False
     scene.cycles.use_denoising = denoise
@@ -61,6 +63,23 @@ def reset(width: int, height: int, samples: int, denoise: bool = False, max_boun
     background = world.node_tree.nodes["Background"]
     background.inputs["Color"].default_value = (*world_color, 1.0)
     background.inputs["Strength"].default_value = world_strength
+
+
+def _enable_gpu() -> bool:
+    """Turn on the first GPU backend Cycles finds; refuse clearly when there is none."""
+    prefs = bpy.context.preferences.addons["cycles"].preferences
+    for backend in ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL"):
+        try:
+            prefs.compute_device_type = backend
+        except TypeError:
+            continue
+        prefs.get_devices()
+        gpus = [d for d in prefs.devices if d.type != "CPU"]
+        if gpus:
+            for d in prefs.devices:
+                d.use = d.type != "CPU"
+            return True
+    raise UserError("--device gpu: Cycles finds no GPU on this machine; render with --device cpu")
 
 
 def set_camera(K: np.ndarray, width: int, height: int, T_base_cam: np.ndarray) -> None:

@@ -26,7 +26,7 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
     if not todo:
         return 0
     bscene.reset(spec.width, spec.height, spec.samples, spec.denoise, spec.max_bounces, spec.world_color,
-                 spec.world_strength)
+                 spec.world_strength, device=spec.device)
     bscene.set_camera(spec.K, spec.width, spec.height, spec.T_base_cam)
     bscene.add_lights(spec.lights)
     bscene.add_planes(spec.planes)

@@ -19,7 +19,7 @@ DEPTH_SCALE = 0.1  # mm per PNG unit, as in the data set
 
 
 def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane: int, resolution: int,
-                     samples: int, progress=None) -> int:
+                     samples: int, device: str = "cpu", progress=None) -> int:
     """Render the templates not yet on disk; returns how many were rendered."""
     folder = Path(folder)
     index_path = folder / "templates.json"
@@ -37,7 +37,7 @@ def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane:
     for sub in ("rgb", "depth", "mask"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
     bscene.reset(resolution, resolution, samples, denoise=samples >= 4, world_color=(1.0, 1.0, 1.0),
-                 world_strength=1.0, transparent=True)
+                 world_strength=1.0, transparent=True, device=device)
     bscene.set_camera(K, resolution, resolution, np.eye(4))
     objects = bscene.RobotObjects(model, Path(part_urdf).parent, {lk.name for lk in model.links})
     objects.pose(Kinematics(model).link_poses(canonical))

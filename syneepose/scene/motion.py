@@ -28,13 +28,13 @@ def trajectory(rng, home, limits, n_frames: int, n_waypoints: int, spread: float
     return way[k] + blend * (way[k + 1] - way[k])
 
 
-class Visibility:
-    """Fast pre-render checks: model points projected into the image and ray-cast against the arm's
-    convex link hulls (a conservative occluder)."""
+class MotionChecks:
+    """Fast pre-render checks on convex link hulls: end-effector points projected into the image and
+    ray-cast against the arm (a conservative occluder), floor clearance and self-collision."""
 
-    def __init__(self, robot, ee_points: np.ndarray):
+    def __init__(self, robot, ee_mesh: trimesh.Trimesh, n_points: int = 300):
         self.robot = robot
-        self.points = ee_points  # (n, 3) on the end-effector surface, in ee_mount (metres)
+        self.points, _ = trimesh.sample.sample_surface(ee_mesh, n_points, seed=0)  # in ee_mount, metres
         arm = read_urdf(robot.urdf)
         ee_links = set(robot.ee_links)
         self.hulls = {}
@@ -44,12 +44,48 @@ class Visibility:
             meshes = [trimesh.load(str(robot.urdf.parent / v.mesh), force="mesh", process=False)
                       .apply_transform(v.origin) for v in link.visuals]
             self.hulls[link.name] = trimesh.util.concatenate(meshes).convex_hull
+        self.hull_ee = ee_mesh.convex_hull
         self.moving: set[str] = set()
         changed = True
         while changed:
             before = len(self.moving)
             self.moving |= {j.child for j in arm.joints if j.type != "fixed" or j.parent in self.moving}
             changed = len(self.moving) != before
+        self._collision = self._collision_manager(arm)
+
+    def _collision_manager(self, arm):
+        """Pairs that touch at the home pose or share a joint are allowed to touch (their hulls overlap)."""
+        manager = trimesh.collision.CollisionManager()
+        for name, hull in self.hulls.items():
+            manager.add_object(name, hull)
+        manager.add_object(self.robot.ee_root, self.hull_ee)
+        self._bodies = [*self.hulls, self.robot.ee_root]
+        attached = {}
+        for j in arm.joints:
+            attached.setdefault(j.child, j.parent)
+        def body_of(link):
+            while link not in self._bodies and link in attached:
+                link = attached[link]
+            return link
+        self._allowed = {frozenset((body_of(j.parent), body_of(j.child))) for j in arm.joints}
+        self._pose_bodies(manager, np.asarray(self.robot.arm.home)[None], 0)
+        _, pairs = manager.in_collision_internal(return_names=True)
+        self._allowed |= {frozenset(p) for p in pairs}
+        return manager
+
+    def _pose_bodies(self, manager, q, i):
+        poses = self.robot.T_base_link(q)
+        for name in self._bodies:
+            manager.set_transform(name, poses[name][i])
+
+    def self_collision(self, q: np.ndarray) -> np.ndarray:
+        """Per frame: True where two link hulls that are apart at home intersect."""
+        out = np.zeros(len(q), bool)
+        for i in range(len(q)):
+            self._pose_bodies(self._collision, q, i)
+            _, pairs = self._collision.in_collision_internal(return_names=True)
+            out[i] = any(frozenset(p) not in self._allowed for p in pairs)
+        return out
 
     def check(self, q: np.ndarray, T_base_cam: np.ndarray, K: np.ndarray, width: int, height: int,
               margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from syneepose.errors import UserError
-from syneepose.scene.motion import Visibility, trajectory
+from syneepose.scene.motion import MotionChecks, trajectory
 from syneepose.scene.sample import rng_for, sample_segment
 from syneepose.scene.spec import SegmentSpec
 
 MAX_TRAJECTORIES, MAX_CAMERAS = 30, 10
 
 
-def plan_segment(preset: dict, robot, visibility: Visibility, scene_id: int, seed: int, n_frames: int,
+def plan_segment(preset: dict, robot, checks: MotionChecks, scene_id: int, seed: int, n_frames: int,
                  width: int, height: int, samples: int, images: list[str] | None = None) -> SegmentSpec:
     rng = rng_for(seed, robot.config, scene_id)
     motion = preset["motion"]
@@ -21,12 +21,12 @@ def plan_segment(preset: dict, robot, visibility: Visibility, scene_id: int, see
     for _ in range(MAX_TRAJECTORIES):
         q = trajectory(rng, robot.arm.home, robot.arm.limits, n_frames, int(motion["waypoints"]),
                        float(motion["spread"]))
-        if not visibility.above_floor(q, float(motion.get("clearance", 0.1))).all():
+        if not checks.above_floor(q, float(motion.get("clearance", 0.1))).all() or checks.self_collision(q).any():
             continue
         for _ in range(MAX_CAMERAS):
             spec = sample_segment(rng, preset, robot, robot.config, scene_id, seed, q, width, height, samples,
                                   images)
-            inside, visible = visibility.check(q, spec.T_base_cam, spec.K, width, height, margin)
+            inside, visible = checks.check(q, spec.T_base_cam, spec.K, width, height, margin)
             if np.all(inside >= 0.999) and np.all(visible >= min_visible):
                 return spec
     raise UserError(f"{robot.config}: no trajectory and camera met the preset's visibility rules after "

@@ -58,6 +58,7 @@ class SegmentSpec:
     samples: int = 16
     denoise: bool = False
     max_bounces: int = 12
+    device: str = "cpu"  # "gpu": Cycles on the first GPU backend found
     world_color: tuple[float, float, float] = (0.05, 0.05, 0.05)
     world_strength: float = 1.0
     lights: list[Light] = field(default_factory=list)
