@@ -1,0 +1,47 @@
+"""What the runner hands a method and what it gets back. Methods never see the ground truth: the
+observation holds sensor data and robot state only, and the scene meta they get has T_cam_base = NaN."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from syneepose.bop import SceneMeta
+
+
+@dataclass
+class Observation:
+    im_id: int
+    rgb: np.ndarray  # (H, W, 3) uint8
+    depth: np.ndarray  # (H, W) metres, 0 = no depth
+    mask: np.ndarray  # (H, W) bool: the visible end-effector (the paper gives every method GT masks)
+    K: np.ndarray  # (3, 3)
+    joint_positions: np.ndarray  # (n,)
+    T_base_ee: np.ndarray  # (4, 4) metres, forward kinematics of the joint positions
+
+
+@dataclass
+class Estimate:
+    T_cam_ee: np.ndarray | None  # (4, 4) metres; None = no estimate (scored as a failure)
+    score: float
+    time_s: float  # the method's own time for this frame (BOP `time`); -1 unknown
+    T_cam_base: np.ndarray | None = None  # the camera-to-base calibration so far, if the method makes one
+    extra: dict = field(default_factory=dict)
+
+
+class Method(Protocol):
+    """A method class is built with its options as keyword arguments (`--variant`, `--backbone`, ...)."""
+
+    name: str
+
+    def options(self) -> dict:
+        """Everything that sets the method's behaviour, JSON-able (goes into summary.json)."""
+
+    def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
+        """A new video segment begins: reset any memory."""
+
+    def estimate(self, obs: Observation) -> Estimate:
+        """One frame, in frame order (online)."""

@@ -1,0 +1,287 @@
+"""`python -m eval.run`: run a method over a BOP data set, frame by frame in order, and score it.
+
+Writes <out>/results.csv (BOP), <out>/errors.csv (one row per frame) and <out>/summary.json. Each
+scene's rows go to <out>/scenes/ as soon as the scene is done, so a stopped run resumes with the
+first scene that is not complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib.metadata
+import importlib.util
+import inspect
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from eval.bop_results import BopResult, read_results, write_results
+from eval.methods import get_method
+from eval.methods.base import Estimate, Observation
+from eval.metrics import add, adds, model_tree, rotation_error_deg, translation_error_mm
+from eval.model_points import MAX_POINTS, SEED, ModelPoints, load_model_points
+from eval.records import FrameErrors, read_errors, write_errors
+from eval.summary import summarise
+from syneepose.bop import SceneMeta, read_frame, read_png, read_scene, write_atomic
+from syneepose.errors import UserError
+
+METHOD_OPTIONS = ("variant", "backbone", "results", "name")  # CLI options handed to the method's constructor
+NO_POSE = np.full((4, 4), np.nan)
+
+
+@dataclasses.dataclass
+class Scene:
+    scene_id: int
+    path: Path
+    meta: SceneMeta
+    im_ids: list[int]
+
+    @property
+    def config(self) -> str:
+        return f"{self.meta.arm}+{self.meta.end_effector}"
+
+
+def build_method(name: str, given: dict):
+    """The method class built with the options given on the command line; a wrong option is a UserError."""
+    cls = get_method(name)
+    params = inspect.signature(cls).parameters
+    takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
+    accepted = [p for p in params if params[p].kind is not params[p].VAR_KEYWORD]
+    flags = ", ".join(f"--{p}" for p in accepted) or "no options"
+    for option in given:
+        if option not in params and not takes_any:
+            raise UserError(f"method {name!r} does not take --{option}; it takes {flags}")
+    for p in params.values():
+        if p.default is p.empty and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name not in given:
+            raise UserError(f"method {name!r} needs --{p.name}")
+    return cls(**given)
+
+
+def _dataset_info(root: Path) -> dict:
+    path = root / "dataset_info.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list[Scene]:
+    if not split_dir.is_dir():
+        raise UserError(f"--dataset {split_dir.parent}: no {split_dir.name}/ folder; give the root of a BOP data "
+                        "set (python -m syneepose render --out DIR)")
+    present = {int(p.name): p for p in split_dir.iterdir() if p.is_dir() and p.name.isdigit()}
+    ids = sorted(present)
+    if scenes:
+        try:
+            ids = [int(v) for v in scenes.split(",") if v.strip()]
+        except ValueError:
+            raise UserError(f"--scenes {scenes!r} must be comma-separated scene ids, e.g. 0,1,2") from None
+        missing = [i for i in ids if i not in present]
+        if missing:
+            raise UserError(f"--scenes: scene {missing[0]} is not in {split_dir} (it has {len(present)} scenes)")
+    found = []
+    for i in ids:
+        meta, im_ids = read_scene(present[i])
+        found.append(Scene(i, present[i], meta, im_ids))
+    if robots:
+        from syneepose.robots.catalog import load_catalog
+
+        wanted = set(load_catalog().parse_configs(robots))
+        found = [s for s in found if s.config in wanted]
+    if not found:
+        raise UserError(f"--dataset {split_dir.parent}: no scene matches --scenes {scenes} --robots {robots}")
+    return found
+
+
+def _observation(scene: Scene, im_id: int, depth_dir: str, cameras: dict):
+    """The observation a method sees and the ground truth T_cam_ee it is scored against."""
+    frame = read_frame(scene.path, im_id)
+    depth = frame.depth
+    if depth_dir != "depth":
+        path = scene.path / depth_dir / f"{im_id:06d}.png"
+        if not path.is_file():
+            raise UserError(f"{path}: missing; --depth-dir {depth_dir} needs that folder beside depth/ in every scene")
+        depth = read_png(path) * (cameras[str(im_id)]["depth_scale"] / 1000.0)
+    obs = Observation(im_id=im_id, rgb=frame.rgb, depth=depth, mask=frame.mask_visib, K=frame.K,
+                      joint_positions=frame.joint_positions, T_base_ee=frame.T_base_ee)
+    return obs, frame.T_cam_ee
+
+
+def _pose(T) -> np.ndarray:
+    return NO_POSE if T is None else np.asarray(T, dtype=float)
+
+
+def score_scene(scene: Scene, T_gt: np.ndarray, estimates: list[Estimate], wall_s: list[float],
+                model: ModelPoints, tree) -> list[FrameErrors]:
+    T_est = np.stack([_pose(e.T_cam_ee) for e in estimates])
+    T_base = np.stack([_pose(e.T_cam_base) for e in estimates])
+    add_m, adds_m = add(T_est, T_gt, model.points), adds(T_est, T_gt, model.points, tree)
+    rot, trans = rotation_error_deg(T_est, T_gt), translation_error_mm(T_est, T_gt)
+    T_cam_base = scene.meta.T_cam_base
+    calib_trans, calib_rot = translation_error_mm(T_base, T_cam_base), rotation_error_deg(T_base, T_cam_base)
+    return [FrameErrors(scene_id=scene.scene_id, im_id=im_id, obj_id=scene.meta.obj_id, config=scene.config,
+                        end_effector=scene.meta.end_effector, add_m=float(add_m[i]), adds_m=float(adds_m[i]),
+                        rot_err_deg=float(rot[i]), trans_err_mm=float(trans[i]),
+                        calib_trans_mm=float(calib_trans[i]), calib_rot_deg=float(calib_rot[i]),
+                        time_s=float(e.time_s), score=float(e.score) if e.T_cam_ee is not None else np.nan,
+                        wall_s=wall_s[i])
+            for i, (im_id, e) in enumerate(zip(scene.im_ids, estimates))]
+
+
+def run_scene(method, scene: Scene, depth_dir: str, model: ModelPoints, tree, bar) -> tuple[list, list]:
+    """The method over one scene in frame order; returns its BOP results and its error rows."""
+    method.start_scene(dataclasses.replace(scene.meta, T_cam_base=NO_POSE.copy()), scene.path)
+    cameras = json.loads((scene.path / "scene_camera.json").read_text())
+    T_gt, estimates, wall_s = [], [], []
+    for im_id in scene.im_ids:
+        obs, T_cam_ee = _observation(scene, im_id, depth_dir, cameras)
+        start = time.perf_counter()
+        estimates.append(method.estimate(obs))
+        wall_s.append(time.perf_counter() - start)
+        T_gt.append(T_cam_ee)
+        bar.update()
+    results = [BopResult(scene.scene_id, im_id, scene.meta.obj_id, e.score, e.T_cam_ee, e.time_s)
+               for im_id, e in zip(scene.im_ids, estimates) if e.T_cam_ee is not None]
+    return results, score_scene(scene, np.stack(T_gt), estimates, wall_s, model, tree)
+
+
+def _scene_files(out: Path, scene_id: int) -> tuple[Path, Path]:
+    return out / "scenes" / f"{scene_id:06d}.results.csv", out / "scenes" / f"{scene_id:06d}.errors.csv"
+
+
+def _done(out: Path, scene: Scene) -> bool:
+    """Complete = both files written (errors last) with a row for every frame the scene has now."""
+    results_csv, errors_csv = _scene_files(out, scene.scene_id)
+    return (results_csv.is_file() and errors_csv.is_file()
+            and [r.im_id for r in read_errors(errors_csv)] == scene.im_ids)
+
+
+def _claim(out: Path, identity: dict) -> None:
+    """An out folder belongs to one run: resuming with another method, options or data set is refused."""
+    identity = json.loads(json.dumps(identity))  # as it reads back from run.json
+    path = out / "run.json"
+    if path.is_file():
+        before = json.loads(path.read_text())
+        if before != identity:
+            changed = sorted(k for k in identity if before.get(k) != identity[k])
+            raise UserError(f"--out {out} holds a run with other {', '.join(changed)} ({path}); "
+                            "use another --out or delete it")
+    try:
+        (out / "scenes").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot write to --out {out}: {exc.strerror}") from exc
+    write_atomic(path, json.dumps(identity, indent=2, sort_keys=True).encode())
+
+
+def _versions() -> dict:
+    import cv2
+    import scipy
+
+    versions = {"numpy": np.__version__, "scipy": scipy.__version__, "cv2": cv2.__version__,
+                "syneepose": importlib.metadata.version("syneepose")}
+    if importlib.util.find_spec("torch") is not None:
+        versions["torch"] = importlib.metadata.version("torch")
+    return versions
+
+
+def _git_commit() -> str | None:
+    repo = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(repo), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head + ("-dirty" if dirty else "")
+
+
+def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: str | None = None,
+             robots: str | None = None, depth_dir: str = "depth") -> dict:
+    """Runs (or resumes) the evaluation and returns the summary it wrote to <out>/summary.json."""
+    method = build_method(method_name, options)
+    dataset, out = Path(dataset).resolve(), Path(out)
+    info, opts = _dataset_info(dataset), method.options()
+    split = info.get("split", "train")
+    selected = find_scenes(dataset / split, scenes, robots)
+    identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir,
+                "max_points": MAX_POINTS}
+    _claim(out, identity)
+    models = {obj_id: load_model_points(dataset / "models", obj_id)
+              for obj_id in sorted({s.meta.obj_id for s in selected})}
+    trees = {obj_id: model_tree(m.points) for obj_id, m in models.items()}
+    todo = [s for s in selected if not _done(out, s)]
+    bar = tqdm(total=sum(len(s.im_ids) for s in selected), unit="frame", desc=f"eval {method_name}",
+               initial=sum(len(s.im_ids) for s in selected) - sum(len(s.im_ids) for s in todo))
+    try:
+        for scene in todo:
+            results, errors = run_scene(method, scene, depth_dir, models[scene.meta.obj_id],
+                                        trees[scene.meta.obj_id], bar)
+            results_csv, errors_csv = _scene_files(out, scene.scene_id)
+            write_results(results_csv, results)
+            write_errors(errors_csv, errors)
+    except BaseException:
+        bar.leave = False
+        raise
+    finally:
+        bar.close()
+
+    all_results, all_errors = [], []
+    for scene in selected:
+        results_csv, errors_csv = _scene_files(out, scene.scene_id)
+        all_results.extend(sorted(read_results(results_csv).values(), key=lambda r: r.im_id))
+        all_errors.extend(read_errors(errors_csv))
+    write_results(out / "results.csv", all_results)
+    write_errors(out / "errors.csv", all_errors)
+    summary = {
+        "method": method_name, "options": opts, "backbone": opts.get("backbone"), "variant": opts.get("variant"),
+        "dataset": {"path": str(dataset), "preset": info.get("preset"), "split": split,
+                    "scenes": [s.scene_id for s in selected], "depth_dir": depth_dir},
+        **summarise(all_errors),
+        "model_points": {
+            str(obj_id): {"n_vertices": m.n_vertices, "n_unique": m.n_unique, "n_points": len(m.points),
+                          "subsampled": m.subsampled} for obj_id, m in models.items()},
+        "model_points_rule": (f"unique PLY vertices (mm -> m); models with more than {MAX_POINTS} are "
+                              f"subsampled with seed {SEED}, closed under their discrete symmetries"),
+        "versions": _versions(),
+        "git_commit": _git_commit(),
+    }
+    write_atomic(out / "summary.json", json.dumps(summary, indent=2).encode())
+    return summary
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m eval.run", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--method", required=True, help="bop-csv, feepe, ...")
+    parser.add_argument("--dataset", required=True, help="BOP data set root (holds dataset_info.json, models/)")
+    parser.add_argument("--out", required=True, help="result folder (resumed if it holds the same run)")
+    parser.add_argument("--variant", choices=["A", "B", "C", "D"], help="method option: ablation variant")
+    parser.add_argument("--backbone", help="method option: feature backbone")
+    parser.add_argument("--results", help="bop-csv option: the BOP results CSV to score")
+    parser.add_argument("--name", help="bop-csv option: the label of those results (e.g. MegaPose)")
+    parser.add_argument("--scenes", help="comma-separated scene ids (default: all)")
+    parser.add_argument("--robots", help="comma-separated ARM+EE configurations (default: all)")
+    parser.add_argument("--depth-dir", default="depth", help="depth folder of each scene (e.g. depth_gt)")
+    args = parser.parse_args(argv)
+    options = {k: getattr(args, k) for k in METHOD_OPTIONS if getattr(args, k) is not None}
+    try:
+        summary = evaluate(args.method, options, Path(args.dataset), Path(args.out), args.scenes, args.robots,
+                           args.depth_dir)
+    except UserError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    avg = summary["average"]
+    print(f"eval: {summary['n_frames']} frames, {summary['n_failures']} failures; AUC@1cm ADD {avg['add@1cm']:.2f} "
+          f"ADD-S {avg['adds@1cm']:.2f} (mean over end-effectors); {args.out}/summary.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,60 @@
+"""The figures of a run, from its errors.csv rows: ADD / ADD-S AUC per end-effector, per configuration
+and averaged over end-effectors (the paper's `Average` is the mean of its columns), calibration error
+and speed."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+
+import numpy as np
+
+from eval.metrics import auc
+from eval.records import FrameErrors
+
+THRESHOLDS_M = {"1cm": 0.01, "2cm": 0.02}
+
+
+def accuracy(rows: list[FrameErrors]) -> dict:
+    """AUC of ADD and ADD-S at each threshold (keys like `add@1cm`), frame and failure counts."""
+    out = {"n_frames": len(rows), "n_failures": sum(r.failed for r in rows)}
+    for key, max_error in THRESHOLDS_M.items():
+        out[f"add@{key}"] = auc([r.add_m for r in rows], max_error)
+        out[f"adds@{key}"] = auc([r.adds_m for r in rows], max_error)
+    return out
+
+
+def _grouped(rows: list[FrameErrors], attr: str) -> dict[str, dict]:
+    groups = defaultdict(list)
+    for r in rows:
+        groups[getattr(r, attr)].append(r)
+    return {name: accuracy(group) for name, group in sorted(groups.items())}
+
+
+def _stats(values: list[float]) -> dict | None:
+    values = [v for v in values if not math.isnan(v)]
+    if not values:
+        return None
+    return {"median": float(np.median(values)), "mean": float(np.mean(values))}
+
+
+def _ms(values: list[float]) -> float | None:
+    known = [v for v in values if v >= 0]
+    return float(np.mean(known) * 1000.0) if known else None
+
+
+def summarise(rows: list[FrameErrors]) -> dict:
+    per_ee = _grouped(rows, "end_effector")
+    metric_keys = [k for k in next(iter(per_ee.values())) if "@" in k]
+    return {
+        "n_frames": len(rows),
+        "n_failures": sum(r.failed for r in rows),
+        "average": {k: float(np.mean([acc[k] for acc in per_ee.values()])) for k in metric_keys},
+        "per_end_effector": per_ee,
+        "per_config": _grouped(rows, "config"),
+        "calibration": {"n_frames": sum(not math.isnan(r.calib_trans_mm) for r in rows),
+                        "trans_mm": _stats([r.calib_trans_mm for r in rows]),
+                        "rot_deg": _stats([r.calib_rot_deg for r in rows])},
+        "ms_per_frame": _ms([r.time_s for r in rows]),
+        "wall_ms_per_frame": _ms([r.wall_s for r in rows]),
+    }

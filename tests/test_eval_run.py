@@ -1,0 +1,242 @@
+"""The runner end to end on a tiny synthetic BOP set (written with SceneWriter, no rendering): ground-truth
+results score 100, a known 3 mm offset scores its closed form, runs resume per scene, and user mistakes
+exit 2 with one `error:` line."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from eval import run
+from eval.bop_results import HEADER, read_results
+from eval.methods import register
+from eval.methods.base import Estimate
+from eval.records import read_errors
+from syneepose.bop import Frame, SceneMeta, SceneWriter, read_frame, write_png
+from syneepose.transforms import make_T
+
+H, W, FRAMES = 12, 16, 4
+# scene id -> (arm, end-effector, obj_id)
+SCENES = {0: ("ur5e", "robotiq_2f85", 2), 1: ("panda", "kinova_3f", 4)}
+REPO = Path(__file__).resolve().parents[1]
+
+
+def make_dataset(root: Path, models: Path) -> Path:
+    """Two scenes of four frames: random images, a known camera-to-base pose, T_cam_ee = T_cam_base T_base_ee."""
+    rng = np.random.default_rng(0)
+    shutil.copytree(models, root / "models", ignore=shutil.ignore_patterns(".*"))
+    (root / "dataset_info.json").write_text(json.dumps({"preset": "synthetic", "split": "train"}))
+    for scene_id, (arm, ee, obj_id) in SCENES.items():
+        T_cam_base = make_T(Rotation.from_euler("xyz", [-2.0, 0.1, 0.3 * scene_id]).as_matrix(), [0.1, 0.2, 1.5])
+        meta = SceneMeta(obj_id=obj_id, arm=arm, end_effector=ee, joint_names=[f"j{i}" for i in range(6)],
+                         T_cam_base=T_cam_base)
+        writer = SceneWriter(root / "train" / f"{scene_id:06d}", meta)
+        for im_id in range(FRAMES):
+            T_base_ee = make_T(Rotation.random(random_state=rng).as_matrix(), rng.uniform(-0.4, 0.4, 3) + [0, 0, 0.5])
+            mask = np.zeros((H, W), bool)
+            mask[3:9, 4:12] = True
+            writer.write(Frame(im_id=im_id, rgb=rng.integers(0, 256, (H, W, 3), dtype=np.uint8),
+                               depth=rng.uniform(0.5, 2.0, (H, W)), mask=mask, mask_visib=mask,
+                               K=np.array([[20.0, 0, 8], [0, 20.0, 6], [0, 0, 1]]), T_cam_ee=T_cam_base @ T_base_ee,
+                               joint_positions=rng.uniform(-2, 2, 6), T_base_ee=T_base_ee))
+    return root
+
+
+def gt_csv(path: Path, dataset: Path, offset_mm=(0.0, 0.0, 0.0), drop=()) -> Path:
+    """The ground truth as a BOP results CSV, copied from scene_gt.json in its own units (mm) so that it reads
+    back bit for bit; translated by `offset_mm` in the camera frame and without the frames `drop`."""
+    lines = [HEADER]
+    for scene_id in SCENES:
+        scene_gt = json.loads((dataset / "train" / f"{scene_id:06d}" / "scene_gt.json").read_text())
+        for im_id, (gt,) in sorted(scene_gt.items(), key=lambda item: int(item[0])):
+            if (scene_id, int(im_id)) not in drop:
+                t = np.add(gt["cam_t_m2c"], offset_mm)
+                lines.append(f"{scene_id},{im_id},{gt['obj_id']},0.9,{' '.join(map(repr, gt['cam_R_m2c']))},"
+                             f"{' '.join(map(repr, t.tolist()))},0.05")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory, assets) -> Path:
+    return make_dataset(tmp_path_factory.mktemp("synthetic"), assets / "models")
+
+
+def _eval(dataset, out, csv, *extra) -> int:
+    return run.main(["--method", "bop-csv", "--dataset", str(dataset), "--out", str(out), "--results", str(csv),
+                     "--name", "Oracle", *extra])
+
+
+def _one_error_line(stderr: str) -> str:
+    lines = [line for line in stderr.replace("\r", "\n").splitlines() if line.strip()]
+    assert "Traceback" not in stderr and lines[-1].startswith("error: ")
+    assert sum(line.startswith("error:") for line in lines) == 1
+    return lines[-1]
+
+
+def test_ground_truth_scores_100(dataset, tmp_path):
+    csv, out = gt_csv(tmp_path / "results.csv", dataset), tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "eval.run", "--method", "bop-csv", "--dataset", str(dataset),
+                           "--out", str(out), "--results", str(csv), "--name", "Oracle"],
+                          capture_output=True, text=True, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    for acc in (summary["average"], *summary["per_end_effector"].values(), *summary["per_config"].values()):
+        assert acc["add@1cm"] == acc["adds@1cm"] == acc["add@2cm"] == acc["adds@2cm"] == 100.0
+    assert (summary["n_frames"], summary["n_failures"]) == (8, 0)
+    assert sorted(summary["per_end_effector"]) == ["kinova_3f", "robotiq_2f85"]
+    assert sorted(summary["per_config"]) == ["panda+kinova_3f", "ur5e+robotiq_2f85"]
+    assert summary["method"] == "bop-csv" and summary["options"]["name"] == "Oracle"
+    assert summary["dataset"]["preset"] == "synthetic" and summary["ms_per_frame"] == pytest.approx(50.0)
+    assert summary["calibration"] == {"n_frames": 0, "trans_mm": None, "rot_deg": None}
+    assert {"numpy", "scipy", "cv2"} <= set(summary["versions"])
+    points = summary["model_points"]["2"]  # 1000 drawn vertices and their half-turn partners
+    assert (points["n_vertices"], points["n_unique"], points["subsampled"]) == (7889, 7889, True)
+    assert 1000 < points["n_points"] <= 2000
+    assert read_results(out / "results.csv").keys() == read_results(csv).keys()
+
+
+def test_offset_of_3mm_scores_its_closed_form_and_missing_frames_fail(dataset, tmp_path):
+    csv = gt_csv(tmp_path / "results.csv", dataset, offset_mm=(0.0, 3.0, 0.0), drop={(0, 1)})
+    assert _eval(dataset, tmp_path / "out", csv) == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    kinova, gripper = summary["per_end_effector"]["kinova_3f"], summary["per_end_effector"]["robotiq_2f85"]
+    # ADD = 3 mm on every estimated frame: AUC = (10 - 3) / 10 at 1 cm, (20 - 3) / 20 at 2 cm.
+    assert kinova["add@1cm"] == pytest.approx(70.0, abs=0.1) and kinova["add@2cm"] == pytest.approx(85.0, abs=0.1)
+    assert gripper["add@1cm"] == pytest.approx(70.0 * 3 / 4, abs=0.1)  # one frame of four has no estimate
+    assert summary["average"]["add@1cm"] == pytest.approx((70.0 + 52.5) / 2, abs=0.1)
+    assert kinova["adds@1cm"] >= kinova["add@1cm"]
+    assert (summary["n_failures"], gripper["n_failures"]) == (1, 1)
+    rows = {(r.scene_id, r.im_id): r for r in read_errors(tmp_path / "out" / "errors.csv")}
+    failed = rows[(0, 1)]
+    assert np.isinf(failed.add_m) and np.isinf(failed.adds_m) and np.isnan(failed.rot_err_deg)
+    assert np.isnan(failed.score) and failed.time_s == -1.0
+    for key, r in rows.items():
+        if key != (0, 1):
+            assert r.add_m == pytest.approx(0.003, abs=1e-9) and r.trans_err_mm == pytest.approx(3.0, abs=1e-6)
+            assert r.rot_err_deg == pytest.approx(0.0, abs=1e-6) and r.score == 0.9
+    assert len(read_results(tmp_path / "out" / "results.csv")) == 7
+
+
+def test_resume_skips_complete_scenes(dataset, tmp_path):
+    out = tmp_path / "out"
+    csv = gt_csv(tmp_path / "results.csv", dataset, offset_mm=(3.0, 0.0, 0.0))
+    assert _eval(dataset, out, csv) == 0
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "scenes").iterdir()}
+    # Same run again: nothing is recomputed (the CSV now holds the ground truth; no scene reads it).
+    gt_csv(csv, dataset)
+    assert _eval(dataset, out, csv) == 0
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "scenes").iterdir()} == stamps
+    assert json.loads((out / "summary.json").read_text())["average"]["add@1cm"] == pytest.approx(70.0, abs=0.1)
+    # A scene without its errors file is run again, and only that one.
+    (out / "scenes" / "000001.errors.csv").unlink()
+    assert _eval(dataset, out, csv) == 0
+    per_ee = json.loads((out / "summary.json").read_text())["per_end_effector"]
+    assert per_ee["robotiq_2f85"]["add@1cm"] == pytest.approx(70.0, abs=0.1)
+    assert per_ee["kinova_3f"]["add@1cm"] == 100.0
+
+
+def test_scene_and_robot_selection(dataset, tmp_path):
+    csv = gt_csv(tmp_path / "results.csv", dataset)
+    assert _eval(dataset, tmp_path / "a", csv, "--scenes", "1") == 0
+    assert list(json.loads((tmp_path / "a" / "summary.json").read_text())["per_end_effector"]) == ["kinova_3f"]
+    assert _eval(dataset, tmp_path / "b", csv, "--robots", "ur5e+robotiq_2f85") == 0
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["dataset"]["scenes"] == [0]
+
+
+@pytest.mark.parametrize("case, message", [
+    ("missing scene", "scene 7 is not in"),
+    ("bad line", "results.csv:3: 6 columns"),
+    ("scene not in data set", "results.csv:2: scene 5 is not in the data set"),
+    ("unknown method", "unknown method 'nope'; known methods: bop-csv, feepe"),
+    ("option the method lacks", "method 'bop-csv' does not take --variant; it takes --results, --name"),
+    ("option missing", "method 'bop-csv' needs --results"),
+    ("other run in out", "holds a run with other options"),
+    ("depth dir missing", "depth_gt/000000.png: missing"),
+])
+def test_user_mistakes_exit_2_with_one_line(dataset, tmp_path, capsys, case, message):
+    csv, out = gt_csv(tmp_path / "results.csv", dataset), tmp_path / "out"
+    args = ["--method", "bop-csv", "--dataset", str(dataset), "--out", str(out), "--results", str(csv),
+            "--name", "Oracle"]
+    if case == "missing scene":
+        args += ["--scenes", "0,7"]
+    elif case == "bad line":
+        lines = csv.read_text().splitlines()
+        csv.write_text("\n".join([*lines[:2], lines[2].rsplit(",", 1)[0], *lines[3:]]) + "\n")
+    elif case == "scene not in data set":
+        lines = csv.read_text().splitlines()
+        csv.write_text("\n".join([lines[0], "5" + lines[1][1:], *lines[2:]]) + "\n")
+    elif case == "unknown method":
+        args[1] = "nope"
+    elif case == "option the method lacks":
+        args += ["--variant", "A"]
+    elif case == "option missing":
+        args = args[:6] + ["--name", "Oracle"]
+    elif case == "other run in out":
+        assert run.main(args) == 0
+        capsys.readouterr()
+        args[-1] = "Another label"
+    elif case == "depth dir missing":
+        args += ["--depth-dir", "depth_gt"]
+    assert run.main(args) == 2
+    assert message in _one_error_line(capsys.readouterr().err)
+
+
+def test_bad_csv_through_the_command_line(dataset, tmp_path):
+    csv = tmp_path / "results.csv"
+    csv.write_text("scene_id,im_id,obj_id,score,R,t,time\n0,0,2,0.9,1 0 0 0 1 0 0 0 1,0 0 x,0.1\n")
+    proc = subprocess.run([sys.executable, "-m", "eval.run", "--method", "bop-csv", "--dataset", str(dataset),
+                           "--out", str(tmp_path / "out"), "--results", str(csv), "--name", "Broken"],
+                          capture_output=True, text=True, cwd=REPO)
+    assert proc.returncode == 2
+    assert f"{csv}:2: not a number" in _one_error_line(proc.stderr)
+
+
+@register("test-probe")
+class Probe:
+    """Records what the runner hands a method; answers the depth it saw as a pose (for --depth-dir)."""
+
+    seen: list = []
+
+    def __init__(self, variant: str = "D", backbone: str = "none"):
+        self.variant, self.backbone = variant, backbone
+
+    def options(self) -> dict:
+        return {"variant": self.variant, "backbone": self.backbone}
+
+    def start_scene(self, meta, scene_dir):
+        Probe.seen.append(("scene", Path(scene_dir).name, meta.T_cam_base.copy()))
+
+    def estimate(self, obs):
+        Probe.seen.append(("frame", obs))
+        return Estimate(T_cam_ee=None, score=0.0, time_s=-1.0, T_cam_base=make_T(t=[0.0, 0.0, obs.depth[0, 0]]))
+
+
+def test_methods_get_observations_in_order_without_ground_truth(dataset, tmp_path):
+    """Options reach the constructor; scenes and frames come in order; --depth-dir swaps the depth folder."""
+    data = tmp_path / "data"
+    shutil.copytree(dataset, data)
+    for scene_id in SCENES:
+        scene = data / "train" / f"{scene_id:06d}"
+        (scene / "depth_gt").mkdir()
+        for im_id in range(FRAMES):
+            write_png(scene / "depth_gt" / f"{im_id:06d}.png", np.full((H, W), 5000 + im_id, np.uint16))
+    Probe.seen.clear()
+    assert run.main(["--method", "test-probe", "--dataset", str(data), "--out", str(tmp_path / "out"),
+                     "--variant", "B", "--depth-dir", "depth_gt"]) == 0
+    assert [item[1] for item in Probe.seen if item[0] == "scene"] == ["000000", "000001"]
+    assert all(np.isnan(item[2]).all() for item in Probe.seen if item[0] == "scene")
+    observations = [item[1] for item in Probe.seen if item[0] == "frame"]
+    assert [o.im_id for o in observations] == [0, 1, 2, 3] * 2
+    assert not hasattr(observations[0], "T_cam_ee")
+    frame = read_frame(data / "train" / "000000", 2)
+    assert np.array_equal(observations[2].mask, frame.mask_visib) and np.array_equal(observations[2].rgb, frame.rgb)
+    assert observations[2].depth[0, 0] == pytest.approx(0.5002)  # 5002 x depth_scale 0.1 mm
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert (summary["variant"], summary["backbone"], summary["n_failures"]) == ("B", "none", 8)
+    assert summary["average"]["add@1cm"] == 0.0 and summary["calibration"]["n_frames"] == 8
