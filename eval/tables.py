@@ -1,0 +1,210 @@
+"""`python -m eval.tables RESULT_DIR... --out DIR`: the paper's tables from result folders, beside the
+paper's reported rows, as Markdown, LaTeX and CSV, plus the accuracy curves and a combined tables.md.
+
+A measured row is labelled with its method, backbone and data set, e.g. "FEEPE (sift-normals, mini)";
+a reported row with "(reported)". A table holds the measured rows that exist: the ablation table the runs
+whose options name a variant, the layer table those with a `layer` option, the hyperparameter table
+those with `n_templates`, `k_r` or `k_f`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import sys
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from eval import reported
+from eval.plots import accuracy_curves
+from eval.records import read_errors
+from syneepose.bop import write_atomic
+from syneepose.errors import UserError
+
+NONE = "–"
+_LATEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "#": r"\#", "_": r"\_", "$": r"\$", "{": r"\{",
+          "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}", "†": r"\dag{}", "–": "--"}
+
+
+@dataclass
+class Run:
+    path: Path
+    summary: dict
+    label: str = ""
+
+    @property
+    def options(self) -> dict:
+        return self.summary.get("options", {})
+
+
+@dataclass
+class Table:
+    key: str  # file stem
+    title: str
+    header: list[str]
+    rows: list[list[str]]
+    notes: list[str] = field(default_factory=list)
+
+
+def load_runs(folders: list[Path]) -> list[Run]:
+    runs = []
+    for folder in folders:
+        path = Path(folder) / "summary.json"
+        if not path.is_file():
+            raise UserError(f"{path}: missing; give folders written by python -m eval.run --out")
+        runs.append(Run(Path(folder), json.loads(path.read_text())))
+    for run in runs:
+        s = run.summary
+        method = run.options.get("name") or s["method"].upper()
+        details = [v for v in (s.get("backbone"), s["dataset"].get("preset") or Path(s["dataset"]["path"]).name) if v]
+        run.label = f"{method} ({', '.join(details)})"
+    repeated = Counter(run.label for run in runs)
+    for run in runs:
+        if repeated[run.label] > 1:
+            run.label += f" [{run.path.name}]"
+    return runs
+
+
+def _num(value, digits: int = 2) -> str:
+    return NONE if value is None else f"{value:.{digits}f}"
+
+
+def _slash(add: float, adds: float) -> str:
+    return f"{add:.2f}/{adds:.2f}"
+
+
+def _pair(acc: dict | None) -> str:
+    return NONE if acc is None else _slash(acc["add@1cm"], acc["adds@1cm"])
+
+
+def table1(runs: list[Run]) -> Table:
+    header = ["Method", *(reported.COLUMN_TITLES[c] for c in reported.TABLE1_COLUMNS), "Speed (ms)"]
+    rows = [[f"{name} (reported)", *(_slash(*cells[c]) for c in reported.TABLE1_COLUMNS), str(speed)]
+            for name, (cells, speed) in reported.TABLE1.items()]
+    for run in runs:
+        per_ee = run.summary["per_end_effector"]
+        cells = [_pair(per_ee.get(c)) for c in reported.TABLE1_COLUMNS[:-2]]
+        rows.append([run.label, *cells, NONE, _pair(run.summary["average"]), _num(run.summary["ms_per_frame"], 0)])
+    return Table("table1", "Table I: AUC@1cm of ADD/ADD-S per end-effector", header, rows, [
+        "Reported Average: mean of the seven columns (RealSense-Franka included); measured Average: mean over "
+        "the end-effectors the run measured (RealSense-Franka is a real data set this project does not have).",
+        "MegaPose = MegaPose-RGBD; MegaPose† = MegaPose-RGB + multi-hypothesis + ICP. Speed: the method's own "
+        "time per frame, without segmentation."])
+
+
+def _option_rows(runs: list[Run], option: str) -> list[tuple[object, Run]]:
+    return sorted(((run.options[option], run) for run in runs if run.options.get(option) is not None),
+                  key=lambda pair: (str(pair[0]), pair[1].label))
+
+
+def ablation(runs: list[Run]) -> Table:
+    rows = [[variant, "FEEPE (reported)", f"{add:.2f}", f"{adds:.2f}"]
+            for variant, (add, adds) in reported.ABLATION.items()]
+    rows += [[str(variant), run.label, _num(run.summary["average"]["add@1cm"]),
+              _num(run.summary["average"]["adds@1cm"])] for variant, run in _option_rows(runs, "variant")]
+    return Table("ablation", "Ablation: average AUC@1cm", ["Variant", "Method", "ADD", "ADD-S"], rows, [
+        "A: PnP on 2D-3D matches; B: + single-frame optimisation; C: + key-frame optimisation; "
+        "D: + symmetry disambiguation (the full method)."])
+
+
+def layers(runs: list[Run]) -> Table:
+    rows = [[str(layer), "FEEPE (reported)", f"{add:.2f}", f"{adds:.2f}"]
+            for layer, (add, adds) in reported.LAYERS.items()]
+    rows += [[str(layer), run.label, _num(run.summary["average"]["add@1cm"]),
+              _num(run.summary["average"]["adds@1cm"])] for layer, run in _option_rows(runs, "layer")]
+    return Table("layers", "DINOv2 layer: average AUC@1cm", ["Layer", "Method", "ADD", "ADD-S"], rows)
+
+
+def hyperparameters(runs: list[Run]) -> Table:
+    rows = []
+    for option, title in reported.HYPERPARAMETER_TITLES.items():
+        rows += [[title, str(value), "FEEPE (reported)", f"{add:.2f}", f"{adds:.2f}", str(speed)]
+                 for value, (add, adds, speed) in reported.HYPERPARAMETERS[option].items()]
+        rows += [[title, str(value), run.label, _num(run.summary["average"]["add@1cm"]),
+                  _num(run.summary["average"]["adds@1cm"]), _num(run.summary["ms_per_frame"], 0)]
+                 for value, run in _option_rows(runs, option)]
+    return Table("hyperparameters", "Hyperparameters: average AUC@1cm and speed",
+                 ["Hyperparameter", "Value", "Method", "ADD", "ADD-S", "Speed (ms)"], rows,
+                 ["Reported choices: 960 templates, 5 reference views, 8 keyframes."])
+
+
+def robot_pose(runs: list[Run]) -> Table:
+    rows = [[f"{name} (reported)", "yes" if free else "no", f"{add:.2f}", f"{adds:.2f}", "RealSense-Franka"]
+            for name, (free, add, adds) in reported.ROBOT_POSE.items()]
+    rows += [[run.label, NONE, _num(run.summary["average"]["add@2cm"]), _num(run.summary["average"]["adds@2cm"]),
+              run.summary["dataset"].get("preset") or NONE] for run in runs]
+    return Table("robot_pose", "Robot pose: AUC@2cm of ADD and ADD-S",
+                 ["Method", "Training-free", "ADD@2cm", "ADD-S@2cm", "Data set"], rows,
+                 ["Reported rows are on the real RealSense-Franka set; measured rows average the end-effectors "
+                  "of their data set."])
+
+
+def to_markdown(table: Table) -> str:
+    lines = ["| " + " | ".join(table.header) + " |", "|" + "---|" * len(table.header)]
+    lines += ["| " + " | ".join(row) + " |" for row in table.rows]
+    return "\n".join(lines) + "\n"
+
+
+def _latex(text: str) -> str:
+    return "".join(_LATEX.get(char, char) for char in text)
+
+
+def to_latex(table: Table) -> str:
+    lines = [f"% {table.title}", r"\begin{tabular}{" + "l" * len(table.header) + "}", r"\toprule",
+             " & ".join(_latex(h) for h in table.header) + r" \\", r"\midrule"]
+    lines += [" & ".join(_latex(cell) for cell in row) + r" \\" for row in table.rows]
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(table: Table) -> str:
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(table.header)
+    writer.writerows(table.rows)
+    return out.getvalue()
+
+
+def write_tables(folders: list[Path], out: Path) -> list[Path]:
+    """Every table in three formats, the curves (when there are runs) and tables.md; returns the files."""
+    runs = load_runs(folders)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tables = [table1(runs), ablation(runs), layers(runs), hyperparameters(runs), robot_pose(runs)]
+    written, sections = [], ["# Tables\n", "Measured rows: `python -m eval.run`; rows marked (reported) are the "
+                             "paper's figures.\n"]
+    for table in tables:
+        for suffix, render in ((".md", to_markdown), (".tex", to_latex), (".csv", to_csv)):
+            written.append(out / f"{table.key}{suffix}")
+            write_atomic(written[-1], render(table).encode())
+        sections += [f"## {table.title}\n", to_markdown(table), *(f"{note}\n" for note in table.notes)]
+    if runs:
+        written.append(out / "accuracy_curves.png")
+        accuracy_curves([(run.label, read_errors(run.path / "errors.csv")) for run in runs], written[-1])
+        sections += ["## Accuracy curves\n", "Fraction of frames with error <= x, averaged over end-effectors "
+                     "(its area is the Average AUC).\n", f"![accuracy curves]({written[-1].name})\n"]
+    written.append(out / "tables.md")
+    write_atomic(written[-1], "\n".join(sections).encode())
+    return written
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m eval.tables", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("results", nargs="*", type=Path, help="result folders of python -m eval.run")
+    parser.add_argument("--out", required=True, type=Path, help="folder for the tables and curves")
+    args = parser.parse_args(argv)
+    try:
+        written = write_tables(args.results, args.out)
+    except UserError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"tables: {len(written)} files in {args.out} (see {args.out / 'tables.md'})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,118 @@
+"""Tables and curves from two result folders written by the runner on the synthetic set: measured rows where
+the runs have the options, reported rows always, in Markdown, LaTeX and CSV, and a PNG."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from matplotlib.image import imread
+
+from eval import reported, run, tables
+from eval.methods import register
+from eval.methods.bop_csv import BopCsv
+from eval.metrics import auc
+from eval.plots import mean_curve
+from eval.records import read_errors
+from tests.test_eval_run import gt_csv, make_dataset
+
+
+@register("test-tuned")
+class Tuned(BopCsv):
+    """bop-csv with the options a FEEPE run records, so the ablation / layer / hyperparameter tables fill."""
+
+    def __init__(self, results: str, name: str, variant: str = "D", backbone: str = "sift-normals"):
+        super().__init__(results, name)
+        self.variant, self.backbone = variant, backbone
+
+    def options(self) -> dict:
+        return {**super().options(), "variant": self.variant, "backbone": self.backbone, "layer": 19,
+                "n_templates": 960, "k_r": 5, "k_f": 8}
+
+
+@pytest.fixture(scope="module")
+def result_dirs(tmp_path_factory, assets):
+    root = tmp_path_factory.mktemp("tables")
+    dataset = make_dataset(root / "data", assets / "models")
+    offset, exact = gt_csv(root / "offset.csv", dataset, offset_mm=(0.0, 0.0, 3.0)), gt_csv(root / "gt.csv", dataset)
+    common = ["--dataset", str(dataset)]
+    assert run.main(["--method", "bop-csv", "--out", str(root / "peer"), "--results", str(offset),
+                     "--name", "Peer", *common]) == 0
+    assert run.main(["--method", "test-tuned", "--out", str(root / "tuned"), "--results", str(exact),
+                     "--name", "Tuned", "--variant", "C", *common]) == 0
+    return root / "peer", root / "tuned"
+
+
+def _rows(path) -> list[list[str]]:
+    with open(path, newline="") as f:
+        return list(csv.reader(f))
+
+
+def test_all_tables_in_three_formats_with_measured_and_reported_rows(result_dirs, tmp_path):
+    out = tmp_path / "tables"
+    assert tables.main([str(d) for d in result_dirs] + ["--out", str(out)]) == 0
+    stems = ["table1", "ablation", "layers", "hyperparameters", "robot_pose"]
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [f"{s}{x}" for s in stems for x in (".md", ".tex", ".csv")] + ["accuracy_curves.png", "tables.md"])
+
+    table1 = {row[0]: row for row in _rows(out / "table1.csv")}
+    assert table1["FEEPE (reported)"][1:] == ["85.24/86.29", "85.24/86.36", "84.53/85.23", "88.73/91.67",
+                                              "84.33/86.11", "84.87/86.15", "29.27/48.71", "77.46/81.50", "67"]
+    assert table1["MegaPose† (reported)"][-1] == "2980"
+    tuned, peer = table1["Tuned (sift-normals, synthetic)"], table1["Peer (synthetic)"]
+    kinova, gripper = reported.TABLE1_COLUMNS.index("kinova_3f") + 1, reported.TABLE1_COLUMNS.index("robotiq_2f85") + 1
+    assert tuned[kinova] == tuned[gripper] == "100.00/100.00" and tuned[1] == "–"  # no Franka hand scene
+    assert float(peer[kinova].split("/")[0]) == pytest.approx(70.0, abs=0.1)  # ADD = 3 mm
+    assert tuned[-2:] == ["100.00/100.00", "50"] and peer[7] == "–"
+
+    ablation = _rows(out / "ablation.csv")
+    assert ["A", "FEEPE (reported)", "7.50", "19.49"] in ablation
+    assert ["C", "Tuned (sift-normals, synthetic)", "100.00", "100.00"] in ablation
+    assert not any("Peer" in row[1] for row in ablation)  # no variant option: not an ablation row
+    assert ["19", "Tuned (sift-normals, synthetic)", "100.00", "100.00"] in _rows(out / "layers.csv")
+    hyper = _rows(out / "hyperparameters.csv")
+    assert ["Reference views", "10", "FEEPE (reported)", "77.98", "81.86", "81"] in hyper
+    assert ["Keyframes", "8", "Tuned (sift-normals, synthetic)", "100.00", "100.00", "50"] in hyper
+    robot = {row[0]: row for row in _rows(out / "robot_pose.csv")}
+    assert robot["RoboKeyGen (reported)"][1:] == ["no", "9.35", "29.99", "RealSense-Franka"]
+    assert float(robot["Peer (synthetic)"][2]) == pytest.approx(85.0, abs=0.1)  # 3 mm at 2 cm
+
+    markdown, latex = (out / "table1.md").read_text(), (out / "table1.tex").read_text()
+    assert "| Tuned (sift-normals, synthetic) | – | 100.00/100.00 |" in markdown
+    assert r"MegaPose\dag{} (reported) & " in latex and r"\begin{tabular}{llllllllll}" in latex
+    combined = (out / "tables.md").read_text()
+    assert all(f"## {t}" in combined for t in ("Table I", "Ablation", "DINOv2 layer", "Hyperparameters",
+                                               "Robot pose", "Accuracy curves"))
+    assert "![accuracy curves](accuracy_curves.png)" in combined
+    image = imread(out / "accuracy_curves.png")
+    assert image.shape[0] > 100 and image.shape[1] > 100
+
+
+def test_reported_only_without_result_folders(tmp_path):
+    assert tables.main(["--out", str(tmp_path)]) == 0
+    rows = _rows(tmp_path / "table1.csv")
+    assert [row[0] for row in rows[1:]] == [f"{name} (reported)" for name in reported.TABLE1]
+    assert not (tmp_path / "accuracy_curves.png").exists()
+
+
+def test_missing_summary_is_a_user_error(tmp_path, capsys):
+    assert tables.main([str(tmp_path / "nowhere"), "--out", str(tmp_path / "t")]) == 2
+    assert capsys.readouterr().err.startswith(f"error: {tmp_path / 'nowhere' / 'summary.json'}: missing")
+
+
+def test_reported_averages_are_the_mean_of_the_seven_columns():
+    """Catches transcription slips: the paper's Average column is the mean of the other seven."""
+    for name, (cells, _) in reported.TABLE1.items():
+        for k in (0, 1):
+            columns = [cells[c][k] for c in reported.TABLE1_COLUMNS[:-1]]
+            assert np.mean(columns) == pytest.approx(cells["average"][k], abs=0.01), name
+
+
+def test_curve_area_is_the_average_auc(result_dirs):
+    peer = result_dirs[0]
+    rows, summary = read_errors(peer / "errors.csv"), json.loads((peer / "summary.json").read_text())
+    x, frac = mean_curve(rows, "add_m", 0.01)
+    assert np.trapz(frac, x) / 0.01 * 100 == pytest.approx(summary["average"]["add@1cm"], abs=1e-9)
+    assert summary["average"]["add@1cm"] == pytest.approx(np.mean([auc([r.add_m for r in rows
+                                                                        if r.end_effector == ee], 0.01)
+                                                                   for ee in ("kinova_3f", "robotiq_2f85")]))
