@@ -22,6 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from eval.bop_results import BopResult, read_results, write_results
+from eval.cli import run_command
 from eval.methods import get_method
 from eval.methods.base import Estimate, Observation
 from eval.metrics import add, adds, model_tree, rotation_error_deg, translation_error_mm
@@ -268,20 +269,15 @@ def main(argv=None) -> int:
     parser.add_argument("--depth-dir", default="depth", help="depth folder of each scene (e.g. depth_gt)")
     args = parser.parse_args(argv)
     options = {k: getattr(args, k) for k in METHOD_OPTIONS if getattr(args, k) is not None}
-    try:
+
+    def action() -> str:
         summary = evaluate(args.method, options, Path(args.dataset), Path(args.out), args.scenes, args.robots,
                            args.depth_dir)
-    except UserError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    avg = summary["average"]
-    print(f"eval: {summary['n_frames']} frames, {summary['n_failures']} failures; AUC@1cm ADD {avg['add@1cm']:.2f} "
-          f"ADD-S {avg['adds@1cm']:.2f} (mean over end-effectors); {args.out}/summary.json")
-    return 0
+        avg = summary["average"]
+        return (f"eval: {summary['n_frames']} frames, {summary['n_failures']} failures; AUC@1cm ADD "
+                f"{avg['add@1cm']:.2f} ADD-S {avg['adds@1cm']:.2f} (mean over end-effectors); {args.out}/summary.json")
 
+    return run_command(action)
 
 if __name__ == "__main__":
     sys.exit(main())

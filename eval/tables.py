@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from eval import reported
+from eval.cli import run_command
 from eval.plots import accuracy_curves
 from eval.records import read_errors
 from syneepose.bop import write_atomic
@@ -197,14 +198,12 @@ def main(argv=None) -> int:
     parser.add_argument("results", nargs="*", type=Path, help="result folders of python -m eval.run")
     parser.add_argument("--out", required=True, type=Path, help="folder for the tables and curves")
     args = parser.parse_args(argv)
-    try:
-        written = write_tables(args.results, args.out)
-    except UserError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(f"tables: {len(written)} files in {args.out} (see {args.out / 'tables.md'})")
-    return 0
 
+    def action() -> str:
+        written = write_tables(args.results, args.out)
+        return f"tables: {len(written)} files in {args.out} (see {args.out / 'tables.md'})"
+
+    return run_command(action)
 
 if __name__ == "__main__":
     sys.exit(main())
