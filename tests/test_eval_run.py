@@ -18,6 +18,7 @@ from eval.methods import register
 from eval.methods.base import Estimate
 from eval.records import read_errors
 from syneepose.bop import Frame, SceneMeta, SceneWriter, read_frame, write_png
+from syneepose.errors import UserError
 from syneepose.transforms import make_T
 
 H, W, FRAMES = 12, 16, 4
@@ -240,3 +241,21 @@ def test_methods_get_observations_in_order_without_ground_truth(dataset, tmp_pat
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert (summary["variant"], summary["backbone"], summary["n_failures"]) == ("B", "none", 8)
     assert summary["average"]["add@1cm"] == 0.0 and summary["calibration"]["n_frames"] == 8
+
+
+def test_registry_names_a_missing_or_broken_builtin_method(tmp_path, monkeypatch):
+    from eval import methods
+
+    (tmp_path / "broken_method.py").write_text("raise RuntimeError('no weights configured')\n")
+    (tmp_path / "needy_method.py").write_text("import a_package_nobody_has\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for name, module in (("ghost", "eval.methods.ghost"), ("broken", "broken_method"), ("needy", "needy_method")):
+        monkeypatch.setitem(methods.BUILTIN, name, module)
+    with pytest.raises(UserError, match=r"method 'ghost' is not available in this checkout \(eval.methods.ghost"):
+        methods.get_method("ghost")
+    with pytest.raises(UserError, match="method 'broken' failed to load: broken_method: RuntimeError: no weights"):
+        methods.get_method("broken")
+    with pytest.raises(UserError, match="method 'needy' failed to load: needy_method: .*a_package_nobody_has"):
+        methods.get_method("needy")
+    assert methods.get_method("bop-csv").name == "bop-csv"
+    assert {"bop-csv", "feepe", "ghost"} <= set(methods.known_methods())
