@@ -74,8 +74,9 @@ def read_index(folder: Path) -> dict:
     return json.loads(path.read_text())
 
 
-def read_template(folder: Path, template_id: int) -> Template:
-    index = read_index(folder)
+def read_template(folder: Path, template_id: int, index: dict | None = None) -> Template:
+    """One template; pass the set's `read_index` when reading many, so the index is parsed once."""
+    index = read_index(folder) if index is None else index
     rec = index.get(str(template_id))
     if rec is None:
         raise UserError(f"{folder}: no template {template_id}")

@@ -1,0 +1,24 @@
+"""Backbones by name: weight-free dense descriptors (`sift`, `normals`, `color` joined with '+') and
+DINOv2 (`dinov2_vits14`, `dinov2_vitl14`, ... with `_reg` variants) from local weights."""
+
+from __future__ import annotations
+
+from syneepose.errors import UserError
+
+DINOV2_NAMES = tuple(f"dinov2_vit{s}14{r}" for s in "sblg" for r in ("", "_reg"))
+
+
+def get_backbone(name: str, **kwargs):
+    if name.startswith("dinov2"):
+        from feepe.backbones.dinov2 import Dinov2Backbone
+
+        if name not in DINOV2_NAMES:
+            raise UserError(f"backbone {name!r} unknown; DINOv2 backbones: {', '.join(DINOV2_NAMES)}")
+        return Dinov2Backbone(name, **kwargs)
+    from feepe.backbones.dense import PARTS, DenseBackbone
+
+    parts = tuple(p for p in name.split("+") if p)
+    if not parts or set(parts) - set(PARTS):
+        raise UserError(f"backbone {name!r} unknown; use parts of {'+'.join(PARTS)} (e.g. sift+normals) "
+                        f"or one of {', '.join(DINOV2_NAMES)}")
+    return DenseBackbone(parts, **kwargs)

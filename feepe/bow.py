@@ -1,0 +1,80 @@
+"""Bag-of-words template retrieval (FoundPose): PCA, k-means words, soft assignment to the 3 nearest
+words, TF-IDF, cosine similarity between a query and every template."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import faiss
+import numpy as np
+
+
+@dataclass
+class BowIndex:
+    mean: np.ndarray  # (D,)
+    components: np.ndarray  # (D, d) PCA projection
+    words: np.ndarray  # (n_words, d)
+    sigma: float  # soft-assignment kernel width
+    idf: np.ndarray  # (n_words,)
+    template_vectors: np.ndarray  # (T, n_words) unit TF-IDF vectors
+    knn: int = 3
+
+    def project(self, desc: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(((desc - self.mean) @ self.components).astype(np.float32))
+
+    def vector(self, desc: np.ndarray) -> np.ndarray:
+        """Unit TF-IDF vector of one image's descriptors."""
+        hist = _soft_histogram(self.project(desc), self.words, self.sigma, self.knn)
+        v = hist * self.idf
+        return v / max(np.linalg.norm(v), 1e-12)
+
+    def retrieve(self, desc: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Indices and cosine similarities of the k most similar templates, best first."""
+        sims = self.template_vectors @ self.vector(desc)
+        order = np.argsort(-sims, kind="stable")[:k]
+        return order, sims[order]
+
+
+def _nearest_words(x: np.ndarray, words: np.ndarray, knn: int) -> tuple[np.ndarray, np.ndarray]:
+    index = faiss.IndexFlatL2(words.shape[1])
+    index.add(np.ascontiguousarray(words, dtype=np.float32))
+    return index.search(x, knn)
+
+
+def _soft_histogram(x: np.ndarray, words: np.ndarray, sigma: float, knn: int) -> np.ndarray:
+    hist = np.zeros(len(words))
+    if len(x) == 0:
+        return hist
+    d2, ids = _nearest_words(x, words, knn)
+    w = np.exp(-d2 / (2.0 * sigma**2))
+    w /= np.maximum(w.sum(1, keepdims=True), 1e-12)
+    np.add.at(hist, ids.ravel(), w.ravel())
+    return hist / len(x)
+
+
+def build_index(per_template: list[np.ndarray], n_words: int = 2048, dims: int = 256, n_fit: int = 100_000,
+                iterations: int = 50, knn: int = 3, seed: int = 0) -> BowIndex:
+    """Fit PCA and words on at most `n_fit` template features. A small template set gets fewer words:
+    faiss wants >= 39 training points per word, so n_words is capped at n_features / 39."""
+    rng = np.random.default_rng(seed)
+    every = np.concatenate(per_template).astype(np.float32)
+    fit = every[rng.choice(len(every), min(n_fit, len(every)), replace=False)]
+    mean = fit.mean(0)
+    dims = min(dims, fit.shape[1])
+    _, _, vt = np.linalg.svd(fit - mean, full_matrices=False)
+    components = vt[:dims].T.astype(np.float32)
+    projected = np.ascontiguousarray((fit - mean) @ components, dtype=np.float32)
+    n_words = int(max(16, min(n_words, len(projected) // 39)))
+    kmeans = faiss.Kmeans(dims, n_words, niter=iterations, seed=seed, verbose=False, max_points_per_centroid=10_000)
+    kmeans.train(projected)
+    words = kmeans.centroids.copy()
+    d2, _ = _nearest_words(projected, words, 1)
+    sigma = float(np.sqrt(max(np.median(d2), 1e-12)))
+
+    index = BowIndex(mean, components, words, sigma, np.ones(n_words), np.zeros((len(per_template), n_words)), knn)
+    hists = np.stack([_soft_histogram(index.project(f), words, sigma, knn) for f in per_template])
+    present = (hists > 0).sum(0)
+    index.idf = np.log(len(per_template) / np.maximum(present, 1))
+    tfidf = hists * index.idf
+    index.template_vectors = tfidf / np.maximum(np.linalg.norm(tfidf, axis=1, keepdims=True), 1e-12)
+    return index

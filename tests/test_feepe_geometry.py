@@ -1,0 +1,135 @@
+"""FEEPE's geometric stages on synthetic data with known answers: crop, PnP, optimisation, memory,
+symmetry."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from feepe.candidates import Candidate
+from feepe.crop import crop_around_mask
+from feepe.depth import backproject, normal_map
+from feepe.matching import best_buddies
+from feepe.memory import MemoryEntry, MemoryPool
+from feepe.optimize import OptimizeOptions, optimize, stack
+from feepe.pnp import solve_pnp
+from feepe.symmetry import consensus
+from syneepose.transforms import inv_T, make_T, rotation_angle, transform_points
+
+K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
+
+
+def _pose(rng, distance=0.6):
+    return make_T(Rotation.random(random_state=rng).as_matrix(), [rng.normal(0, 0.05), rng.normal(0, 0.05), distance])
+
+
+def _project(T, X, K):
+    P = transform_points(T, X)
+    return (P[:, :2] / P[:, 2:]) * [K[0, 0], K[1, 1]] + K[:2, 2]
+
+
+def test_crop_maps_points_and_intrinsics():
+    rng = np.random.default_rng(0)
+    mask = np.zeros((240, 320), bool)
+    mask[100:140, 200:230] = True
+    rgb = rng.integers(0, 255, (240, 320, 3), dtype=np.uint8)
+    crop = crop_around_mask(rgb, np.ones((240, 320)), mask, K, 96, 0.2)
+    X = np.array([[0.01, -0.02, 0.5], [0.03, 0.0, 0.7]])
+    uv = _project(np.eye(4), X, K)
+    uv_crop = _project(np.eye(4), X, crop.K)
+    np.testing.assert_allclose(crop.to_original(uv_crop), uv, atol=1e-9)
+    assert crop.mask.sum() > 0 and (crop.rgb[~crop.mask] == 0).all()
+    # the padded mask box fills the crop: 40 px tall box, 1.2 x padding -> 96 px
+    ys = np.nonzero(crop.mask.any(1))[0]
+    assert abs((ys.max() - ys.min() + 1) - 96 / 1.2) <= 2
+    assert crop_around_mask(rgb, np.ones((240, 320)), np.zeros_like(mask), K, 96, 0.2) is None
+
+
+def test_normals_of_a_tilted_plane():
+    n_true = np.array([0.0, -np.sin(0.4), -np.cos(0.4)])
+    u, v = np.meshgrid(np.arange(320.0), np.arange(240.0))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+    p0 = np.array([0, 0, 1.0])
+    depth = (n_true @ p0) / (rays @ n_true)
+    n, valid = normal_map(depth, K)
+    assert valid[5:-5, 5:-5].all()
+    np.testing.assert_allclose(n[10:-10, 10:-10].reshape(-1, 3), np.tile(n_true, (300 * 220, 1)), atol=1e-6)
+
+
+def test_best_buddies_are_mutual_and_sorted():
+    rng = np.random.default_rng(1)
+    t = rng.normal(size=(50, 16))
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    perm = rng.permutation(50)
+    q = t[perm] + rng.normal(0, 0.01, (50, 16))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    pairs, score = best_buddies(q.astype(np.float32), t.astype(np.float32), max_matches=30)
+    assert len(pairs) == 30 and np.all(np.diff(score) <= 0)
+    np.testing.assert_array_equal(perm[pairs[:, 0]], pairs[:, 1])
+
+
+def test_pnp_recovers_pose_with_outliers():
+    rng = np.random.default_rng(2)
+    T = _pose(rng)
+    X = rng.uniform(-0.08, 0.08, (120, 3))
+    uv = _project(T, X, K) + rng.normal(0, 0.3, (120, 2))
+    uv[:30] = rng.uniform(0, 320, (30, 2))  # 25 % outliers
+    T_est, inlier = solve_pnp(uv, X, K, threshold_px=3.0)
+    assert np.rad2deg(rotation_angle(T_est[:3, :3], T[:3, :3])) < 1.0
+    assert np.linalg.norm(T_est[:3, 3] - T[:3, 3]) < 0.005
+    assert inlier[30:].mean() > 0.95 and inlier[:30].mean() < 0.2
+    assert solve_pnp(uv[:5], X[:5], K) is None
+
+
+def _candidate(T_cam_ee, X, K, rng, noise_px=0.5, depth=True, outliers=0):
+    uv = _project(T_cam_ee, X, K) + rng.normal(0, noise_px, (len(X), 2))
+    if outliers:
+        uv[:outliers] = rng.uniform(0, 320, (outliers, 2))
+    obs = transform_points(T_cam_ee, X) if depth else np.full((len(X), 3), np.nan)
+    return Candidate(0, T_cam_ee, uv, X, obs, 1.0)
+
+
+def test_optimisation_recovers_calibration_over_key_frames():
+    rng = np.random.default_rng(3)
+    T_cam_base = make_T(Rotation.from_euler("xyz", [2.0, 0.3, -0.5]).as_matrix(), [0.1, -0.2, 1.2])
+    frames = []
+    for _ in range(4):
+        T_base_ee = make_T(Rotation.random(random_state=rng).as_matrix(), rng.uniform(-0.2, 0.2, 3) + [0, 0, 0.4])
+        X = rng.uniform(-0.06, 0.06, (80, 3))
+        frames.append((T_base_ee, K, [_candidate(T_cam_base @ T_base_ee, X, K, rng, outliers=16)]))
+    T_init = T_cam_base @ make_T(Rotation.from_rotvec([0.1, -0.05, 0.08]).as_matrix(), [0.02, 0.01, -0.02])
+    T, r2d = optimize(T_init, stack(frames), OptimizeOptions())
+    assert np.rad2deg(rotation_angle(T[:3, :3], T_cam_base[:3, :3])) < 0.2
+    assert np.linalg.norm(T[:3, 3] - T_cam_base[:3, 3]) < 0.001
+    assert np.median(r2d) < 1.0
+
+
+def test_memory_pool_threshold_and_farthest_point_key_frames():
+    pool = MemoryPool(threshold_deg=10.0)
+    rot = lambda deg: make_T(Rotation.from_euler("z", deg, degrees=True).as_matrix())
+    found = type("F", (), {"candidates": [object()], "K": K})()
+    empty = type("F", (), {"candidates": [], "K": K})()
+    added = [pool.consider(MemoryEntry(i, rot(a), found)) for i, a in enumerate([0, 5, 12, 20, 40, 90, 91])]
+    assert added == [True, False, True, False, True, True, False]  # 20 is 8 deg from 12
+    assert not pool.consider(MemoryEntry(9, rot(150), empty))
+    keys = pool.key_frames(rot(0)[:3, :3], 2)
+    assert [e.frame for e in keys] == [5, 4]  # 90 deg first, then the one farthest from {0 (seed), 90}: 40
+    assert [e.frame for e in pool.key_frames(rot(-60)[:3, :3], 1)] == [5]  # 150 deg away
+
+
+def test_consensus_picks_the_symmetry_mode_that_agrees_with_kinematics():
+    rng = np.random.default_rng(4)
+    T_cam_base = _pose(rng, 1.0)
+    flip = make_T(Rotation.from_euler("z", 180, degrees=True).as_matrix())
+    frames = []
+    for i in range(5):
+        T_base_ee = make_T(Rotation.random(random_state=rng).as_matrix(), rng.uniform(-0.2, 0.2, 3))
+        true = T_cam_base @ T_base_ee
+        jitter = make_T(Rotation.from_rotvec(rng.normal(0, 0.03, 3)).as_matrix())
+        cands = [Candidate(0, true @ jitter, np.zeros((30, 2)), np.zeros((30, 3)), np.zeros((30, 3)), 1.0)]
+        # every frame also has a symmetric twin; frame 0's twin has more inliers than its true pose
+        n = 60 if i == 0 else 20
+        cands.append(Candidate(0, true @ flip, np.zeros((n, 2)), np.zeros((n, 3)), np.zeros((n, 3)), 1.0))
+        frames.append((T_base_ee, cands))
+    keep, T = consensus(frames, tolerance_deg=20.0)
+    assert all(k == [True, False] for k in keep)
+    assert np.rad2deg(rotation_angle(T[:3, :3], T_cam_base[:3, :3])) < 5
