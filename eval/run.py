@@ -32,7 +32,8 @@ from eval.summary import summarise
 from syneepose.bop import SceneMeta, read_frame, read_png, read_scene, write_atomic
 from syneepose.errors import UserError
 
-METHOD_OPTIONS = ("variant", "backbone", "results", "name")  # CLI options handed to the method's constructor
+METHOD_OPTIONS = ("variant", "icp", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
+                  "templates_dir", "results", "name")  # CLI options handed to the method's constructor
 NO_POSE = np.full((4, 4), np.nan)
 
 
@@ -262,6 +263,14 @@ def main(argv=None) -> int:
     parser.add_argument("--out", required=True, help="result folder (resumed if it holds the same run)")
     parser.add_argument("--variant", choices=["A", "B", "C", "D"], help="method option: ablation variant")
     parser.add_argument("--backbone", help="method option: feature backbone")
+    parser.add_argument("--icp", action="store_const", const=True,
+                        help="feepe option: add depth alignment (our extension, not in the paper)")
+    parser.add_argument("--layer", type=int, help="feepe option: DINOv2 block (counted from 1; paper: 19)")
+    parser.add_argument("--n-templates", type=int, help="feepe option: template set by count (default: largest)")
+    parser.add_argument("--k-r", type=int, help="feepe option: reference templates per frame (paper: 5)")
+    parser.add_argument("--k-f", type=int, help="feepe option: key frames (paper: 8)")
+    parser.add_argument("--backbone-weights", help="feepe option: DINOv2 weights (HF folder or torch-hub .pth)")
+    parser.add_argument("--templates-dir", help="feepe option: template root (default: DATASET/templates)")
     parser.add_argument("--results", help="bop-csv option: the BOP results CSV to score")
     parser.add_argument("--name", help="bop-csv option: the label of those results (e.g. MegaPose)")
     parser.add_argument("--scenes", help="comma-separated scene ids (default: all)")

@@ -19,12 +19,15 @@ class BowIndex:
     template_vectors: np.ndarray  # (T, n_words) unit TF-IDF vectors
     knn: int = 3
 
+    def __post_init__(self):
+        self._words_index = _word_index(self.words)
+
     def project(self, desc: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(((desc - self.mean) @ self.components).astype(np.float32))
 
     def vector(self, desc: np.ndarray) -> np.ndarray:
         """Unit TF-IDF vector of one image's descriptors."""
-        hist = _soft_histogram(self.project(desc), self.words, self.sigma, self.knn)
+        hist = _soft_histogram(self.project(desc), self._words_index, self.sigma, self.knn)
         v = hist * self.idf
         return v / max(np.linalg.norm(v), 1e-12)
 
@@ -35,17 +38,18 @@ class BowIndex:
         return order, sims[order]
 
 
-def _nearest_words(x: np.ndarray, words: np.ndarray, knn: int) -> tuple[np.ndarray, np.ndarray]:
+def _word_index(words: np.ndarray):
     index = faiss.IndexFlatL2(words.shape[1])
     index.add(np.ascontiguousarray(words, dtype=np.float32))
-    return index.search(x, knn)
+    return index
 
 
-def _soft_histogram(x: np.ndarray, words: np.ndarray, sigma: float, knn: int) -> np.ndarray:
-    hist = np.zeros(len(words))
+def _soft_histogram(x: np.ndarray, words, sigma: float, knn: int) -> np.ndarray:
+    """words: a faiss index over the word vectors."""
+    hist = np.zeros(words.ntotal)
     if len(x) == 0:
         return hist
-    d2, ids = _nearest_words(x, words, knn)
+    d2, ids = words.search(x, knn)
     w = np.exp(-d2 / (2.0 * sigma**2))
     w /= np.maximum(w.sum(1, keepdims=True), 1e-12)
     np.add.at(hist, ids.ravel(), w.ravel())
@@ -68,11 +72,12 @@ def build_index(per_template: list[np.ndarray], n_words: int = 2048, dims: int =
     kmeans = faiss.Kmeans(dims, n_words, niter=iterations, seed=seed, verbose=False, max_points_per_centroid=10_000)
     kmeans.train(projected)
     words = kmeans.centroids.copy()
-    d2, _ = _nearest_words(projected, words, 1)
+    word_index = _word_index(words)
+    d2, _ = word_index.search(projected, 1)
     sigma = float(np.sqrt(max(np.median(d2), 1e-12)))
 
     index = BowIndex(mean, components, words, sigma, np.ones(n_words), np.zeros((len(per_template), n_words)), knn)
-    hists = np.stack([_soft_histogram(index.project(f), words, sigma, knn) for f in per_template])
+    hists = np.stack([_soft_histogram(index.project(f), word_index, sigma, knn) for f in per_template])
     present = (hists > 0).sum(0)
     index.idf = np.log(len(per_template) / np.maximum(present, 1))
     tfidf = hists * index.idf

@@ -39,6 +39,7 @@ class FrameCandidates:
     candidates: list[Candidate]
     n_features: int
     timings: dict = field(default_factory=dict)  # ms per stage
+    cloud: np.ndarray | None = None  # (N, 3) masked depth points, camera frame (depth alignment only)
 
 
 @dataclass

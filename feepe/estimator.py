@@ -14,6 +14,7 @@ import numpy as np
 
 from feepe.backbones import get_backbone
 from feepe.candidates import FrameCandidates, SingleFrameOptions, frame_candidates
+from feepe.icp import SurfaceModel, associate, observed_cloud
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
@@ -30,12 +31,18 @@ class FeepeOptions:
     k_f: int = 8
     memory_threshold_deg: float = 10.0
     symmetry_tolerance_deg: float = 20.0
+    icp: bool = False  # our depth-alignment extension (feepe/icp.py); the paper's variants run without it
+    icp_iterations: int = 5
+    icp_gate_m: float = 0.02
+    icp_sigma_m: float = 0.002
     single: SingleFrameOptions = field(default_factory=SingleFrameOptions)
     optimize: OptimizeOptions = field(default_factory=OptimizeOptions)
 
     def __post_init__(self):
         if self.variant not in VARIANTS:
             raise UserError(f"FEEPE variant {self.variant!r} unknown; choose one of {', '.join(VARIANTS)}")
+        if self.icp and self.variant == "A":
+            raise UserError("variant A is PnP only; depth alignment (icp) needs variant B, C or D")
 
 
 @dataclass
@@ -48,21 +55,32 @@ class FrameResult:
     timings: dict  # ms per stage and "total"
 
 
+def describe(opts: FeepeOptions, backbone) -> dict:
+    """Every option that changes the estimates, JSON-able."""
+    return {**asdict(opts), "backbone": backbone.options()}
+
+
 class Estimator:
-    def __init__(self, bank: TemplateBank, backbone, options: FeepeOptions | None = None):
-        self.bank, self.backbone = bank, backbone
+    def __init__(self, bank: TemplateBank, backbone, options: FeepeOptions | None = None,
+                 model: SurfaceModel | None = None):
+        self.bank, self.backbone, self.model = bank, backbone, model
         self.opts = options or FeepeOptions()
+        if self.opts.icp and model is None:
+            raise UserError("depth alignment (icp) needs the end-effector model: pass model=SurfaceModel.from_ply(...)")
         self.reset()
 
     @classmethod
     def from_templates(cls, folder: Path, backbone: str = "sift+normals", options: FeepeOptions | None = None,
-                       cache_dir: Path | None = None, **backbone_kwargs) -> "Estimator":
+                       cache_dir: Path | None = None, model_path: Path | None = None,
+                       **backbone_kwargs) -> "Estimator":
+        """model_path (the BOP .ply, mm) is needed only for the depth-alignment extension."""
         net = get_backbone(backbone, **backbone_kwargs)
         opts = options or FeepeOptions()
-        return cls(onboard(folder, net, opts.single.pad, cache_dir=cache_dir), net, opts)
+        model = SurfaceModel.from_ply(model_path) if model_path else None
+        return cls(onboard(folder, net, opts.single.pad, cache_dir=cache_dir), net, opts, model)
 
     def options(self) -> dict:
-        return {**asdict(self.opts), "backbone": self.backbone.options(), "n_templates": len(self.bank)}
+        return {**describe(self.opts, self.backbone), "n_templates": len(self.bank)}
 
     def reset(self) -> None:
         """Start a new sequence (a new camera placement): the memory and the last calibration go."""
@@ -77,6 +95,8 @@ class Estimator:
         found = frame_candidates(rgb, depth, np.asarray(mask, bool), K, self.bank, self.backbone, self.opts.single)
         if found is None:
             found = FrameCandidates(np.eye(3), [], 0, {})
+        if self.opts.icp:
+            found.cloud = observed_cloud(np.asarray(depth, float), np.asarray(mask, bool), K)
         timings = dict(found.timings)
         t0 = time.perf_counter()
         T_cam_base, score, n_keys = self._estimate(found, T_base_ee)
@@ -91,16 +111,16 @@ class Estimator:
 
     def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray):
         opts, cands = self.opts, found.candidates
-        best = max(cands, key=lambda c: c.n_inliers) if cands else None
         if opts.variant == "A":
-            if best is None:
+            if not cands:
                 return None, 0.0, 0
+            best = max(cands, key=lambda c: c.n_inliers)
             return best.T_cam_ee @ inv_T(T_base_ee), float(best.n_inliers), 0
-        frames = [(T_base_ee, found.K, cands)]
+        views = [(T_base_ee, found)]
         if opts.variant in ("C", "D"):
-            keys = self.pool.key_frames(T_base_ee[:3, :3], opts.k_f)
-            frames += [(e.T_base_ee, e.found.K, e.found.candidates) for e in keys]
-        if not any(f[2] for f in frames):
+            views += [(e.T_base_ee, e.found) for e in self.pool.key_frames(T_base_ee[:3, :3], opts.k_f)]
+        frames = [(T, f.K, f.candidates) for T, f in views]
+        if not any(c for _, _, c in frames):
             return None, 0.0, 0
         if opts.variant == "D":
             keep, T_init = consensus([(T, c) for T, _, c in frames], opts.symmetry_tolerance_deg)
@@ -109,9 +129,24 @@ class Estimator:
             T_init = self.T_cam_base
         else:
             T_init = _init_from(frames)
-        T, _ = optimize(T_init, stack(frames), opts.optimize)
+        obs = stack(frames)
+        T, _ = optimize(T_init, obs, opts.optimize)
+        if opts.icp:
+            T = self._align_depth(T, obs, [(T_b, f.cloud) for T_b, f in views])
         score = float(np.sum(reprojection_px(T, stack(frames[:1])) <= opts.single.pnp_threshold_px))
         return T, score, len(frames) - 1
+
+    def _align_depth(self, T: np.ndarray, obs, clouds: list) -> np.ndarray:
+        """Alternate nearest-point association and the joint optimisation with the point-to-plane term."""
+        opts = self.opts
+        for _ in range(opts.icp_iterations):
+            planes = associate(T, clouds, self.model, opts.icp_gate_m)
+            T_new, _ = optimize(T, obs, opts.optimize, planes, opts.icp_sigma_m)
+            moved = np.linalg.norm(T_new[:3, 3] - T[:3, 3])
+            T = T_new
+            if moved < 1e-5:
+                break
+        return T
 
 
 def _init_from(frames) -> np.ndarray:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from feepe.icp import PlaneTerms
 from syneepose.transforms import transform_points
 
 
@@ -47,35 +48,50 @@ def _skew_rows(Q: np.ndarray) -> np.ndarray:
                       np.stack([-Q[:, 1], Q[:, 0], z], 1)], 1)
 
 
-class _Problem:
-    """Residual vectors (2D: 2 rows, 3D: 3 rows per match), already divided by their scales."""
+def _d_point(Q: np.ndarray) -> np.ndarray:
+    """d(exp(w) Q + t + tau)/d(w, tau) at 0, shape (N, 3, 6)."""
+    return np.concatenate([_skew_rows(Q), np.broadcast_to(np.eye(3), (len(Q), 3, 3))], 2)
 
-    def __init__(self, T0: np.ndarray, obs: Observations, sigma_px: float, sigma_m: float, w3d: float):
+
+class _Problem:
+    """Residual blocks, already divided by their scales: 2D (2 rows per match), 3D (3 rows per match with
+    depth) and, with depth alignment, point-to-plane (1 row per associated depth point)."""
+
+    def __init__(self, obs: Observations, sigma_px: float, sigma_m: float, w3d: float,
+                 planes: PlaneTerms | None = None, k_plane: float = 0.0):
         self.obs, self.sigma_px, self.k3 = obs, sigma_px, w3d / sigma_m
         self.depth = np.isfinite(obs.observed_cam).all(1) if w3d > 0 else np.zeros(len(obs.uv), bool)
-        self.T = T0.copy()
+        self.planes = planes if planes is not None and k_plane > 0 else None
+        self.k_plane = k_plane
 
-    def errors(self, T: np.ndarray, jacobian: bool = False):
+    def errors(self, T: np.ndarray, jacobian: bool = False) -> tuple[list, list]:
         Q = self.obs.base_points @ T[:3, :3].T
         P = Q + T[:3, 3]
         K = self.obs.K
         z = np.maximum(P[:, 2], 1e-6)
         e2 = (np.stack([K[:, 0] * P[:, 0] / z + K[:, 2], K[:, 1] * P[:, 1] / z + K[:, 3]], 1) - self.obs.uv)
-        e3 = (P[self.depth] - self.obs.observed_cam[self.depth]) * self.k3
+        blocks = [e2 / self.sigma_px, (P[self.depth] - self.obs.observed_cam[self.depth]) * self.k3]
+        if self.planes is not None:
+            pl = self.planes
+            Qp = pl.base_points @ T[:3, :3].T
+            n = pl.base_normals @ T[:3, :3].T
+            blocks.append((np.sum(n * (pl.target_cam - Qp - T[:3, 3]), 1) * self.k_plane)[:, None])
         if not jacobian:
-            return e2 / self.sigma_px, e3
-        dP = np.concatenate([_skew_rows(Q), np.broadcast_to(np.eye(3), (len(Q), 3, 3))], 2)  # (N, 3, 6)
+            return blocks, []
+        dP = _d_point(Q)
         dpi = np.zeros((len(P), 2, 3))
         dpi[:, 0, 0] = K[:, 0] / z
         dpi[:, 0, 2] = -K[:, 0] * P[:, 0] / z**2
         dpi[:, 1, 1] = K[:, 1] / z
         dpi[:, 1, 2] = -K[:, 1] * P[:, 1] / z**2
-        J2 = np.einsum("nij,njk->nik", dpi, dP) / self.sigma_px
-        return e2 / self.sigma_px, e3, J2, dP[self.depth] * self.k3
+        jacobians = [np.einsum("nij,njk->nik", dpi, dP) / self.sigma_px, dP[self.depth] * self.k3]
+        if self.planes is not None:  # the normal is held fixed within a step, as usual for point-to-plane
+            jacobians.append(-np.einsum("ni,nik->nk", n, _d_point(Qp))[:, None, :] * self.k_plane)
+        return blocks, jacobians
 
 
-def _cost(e2: np.ndarray, e3: np.ndarray) -> float:
-    return float(np.log1p(np.sum(e2**2, 1)).sum() + np.log1p(np.sum(e3**2, 1)).sum())
+def _cost(blocks: list) -> float:
+    return float(sum(np.log1p(np.sum(e**2, 1)).sum() for e in blocks))
 
 
 def _step(T: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -94,41 +110,43 @@ class OptimizeOptions:
     max_iterations: int = 30
 
 
-def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions) -> tuple[np.ndarray, np.ndarray]:
+def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions, planes: PlaneTerms | None = None,
+             plane_sigma_m: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
     """The calibration minimising sum rho(||e||^2), rho = Cauchy, and its reprojection errors (px).
 
     Iteratively reweighted Gauss-Newton with Levenberg damping on analytic Jacobians: the weights
     1 / (1 + ||e||^2) are rho's derivative, so each step is a Gauss-Newton step of the robust cost.
+    `planes` adds the depth-alignment term (point-to-plane distances over `plane_sigma_m`).
     """
-    if len(obs.uv) == 0:
+    if len(obs.uv) == 0 and (planes is None or len(planes.target_cam) == 0):
         return T_init, np.zeros(0)
     w3d = float(np.sqrt(opts.lam)) if opts.lam > 0 else 0.0
-    problem = _Problem(T_init, obs, opts.sigma_px, opts.sigma_m, w3d)
+    problem = _Problem(obs, opts.sigma_px, opts.sigma_m, w3d, planes, 1.0 / plane_sigma_m)
     T, damping = T_init.copy(), 1e-3
-    e2, e3, J2, J3 = problem.errors(T, jacobian=True)
-    cost = _cost(e2, e3)
+    blocks, jacobians = problem.errors(T, jacobian=True)
+    cost = _cost(blocks)
     for _ in range(opts.max_iterations):
-        w2 = 1.0 / (1.0 + np.sum(e2**2, 1))
-        w3 = 1.0 / (1.0 + np.sum(e3**2, 1))
-        H = np.einsum("n,nik,nil->kl", w2, J2, J2) + np.einsum("n,nik,nil->kl", w3, J3, J3)
-        g = np.einsum("n,ni,nik->k", w2, e2, J2) + np.einsum("n,ni,nik->k", w3, e3, J3)
+        H, g = np.zeros((6, 6)), np.zeros(6)
+        for e, J in zip(blocks, jacobians):
+            w = 1.0 / (1.0 + np.sum(e**2, 1))
+            H += np.einsum("n,nik,nil->kl", w, J, J)
+            g += np.einsum("n,ni,nik->k", w, e, J)
         while True:
             x = np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), -g)
             T_new = _step(T, x)
-            e2n, e3n = problem.errors(T_new)
-            cost_new = _cost(e2n, e3n)
+            cost_new = _cost(problem.errors(T_new)[0])
             if cost_new <= cost or damping > 1e8:
                 break
             damping *= 10.0
         if cost_new > cost:
             break
         T, cost, damping = T_new, cost_new, max(damping / 10.0, 1e-7)
-        e2, e3, J2, J3 = problem.errors(T, jacobian=True)
+        blocks, jacobians = problem.errors(T, jacobian=True)
         if np.linalg.norm(x[:3]) < 1e-7 and np.linalg.norm(x[3:]) < 1e-7:
             break
     return T, reprojection_px(T, obs)
 
 
 def reprojection_px(T_cam_base: np.ndarray, obs: Observations) -> np.ndarray:
-    e2, _ = _Problem(T_cam_base, obs, 1.0, 1.0, 0.0).errors(T_cam_base)
-    return np.linalg.norm(e2, axis=1)
+    blocks, _ = _Problem(obs, 1.0, 1.0, 0.0).errors(T_cam_base)
+    return np.linalg.norm(blocks[0], axis=1)

@@ -1,0 +1,55 @@
+"""FEEPE speed: onboarding time per end-effector and per-stage ms/frame (variant D) on a rendered data set.
+
+Prints figures, asserts nothing: `make bench` or `.venv/bin/python benchmarks/feepe.py [--dataset data/mini]
+[--backbone sift+normals] [--frames N]`. Onboarding runs into a fresh cache folder, so it is timed cold.
+"""
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from eval.methods.feepe import find_template_set
+from feepe.backbones import get_backbone
+from feepe.estimator import Estimator, FeepeOptions
+from feepe.onboarding import onboard
+from syneepose.bop import read_frame, read_scene
+
+STAGES = ("backbone", "retrieval", "matching", "pnp", "optimisation", "total")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--dataset", default="data/mini")
+    parser.add_argument("--backbone", default="sift+normals")
+    parser.add_argument("--frames", type=int, default=0, help="frames per scene (0: all)")
+    args = parser.parse_args()
+    root = Path(args.dataset)
+    net = get_backbone(args.backbone)
+    scenes = sorted(p for p in (root / "train").iterdir() if p.is_dir())
+    timings, banks = [], {}
+    with tempfile.TemporaryDirectory() as cache:
+        for scene in scenes:
+            meta, im_ids = read_scene(scene)
+            ee = meta.end_effector
+            if ee not in banks:
+                folder = find_template_set(root / "templates", ee, None)
+                banks[ee] = onboard(folder, net, cache_dir=Path(cache))
+                print(f"onboarding {folder.name}: {banks[ee].seconds:.1f} s, {len(banks[ee].uv)} features")
+            est = Estimator(banks[ee], net, FeepeOptions(variant="D"))
+            for im_id in im_ids[: args.frames or None]:
+                f = read_frame(scene, im_id)
+                timings.append(est.step(f.rgb, f.depth, f.mask_visib, f.K, f.T_base_ee).timings)
+    mean = {s: float(np.mean([t.get(s, 0.0) for t in timings])) for s in STAGES}
+    non_backbone = mean["total"] - mean["backbone"]
+    print(f"{args.backbone}, variant D, {len(timings)} frames of {root}: "
+          + ", ".join(f"{s} {mean[s]:.1f}" for s in STAGES) + f" ms/frame; everything but the backbone "
+          f"{non_backbone:.1f} ms/frame")
+
+
+if __name__ == "__main__":
+    t0 = time.perf_counter()
+    main()
+    print(f"benchmark wall time {time.perf_counter() - t0:.0f} s")

@@ -1,0 +1,80 @@
+"""`feepe`: the FEEPE estimator run online over each segment, with the data set's own templates.
+
+Templates come from `<dataset>/templates/<ee>_<views>x<inplane>_<res>px/` (python -m syneepose templates)
+or from `--templates-dir`; `--n-templates` picks a set by count when several were rendered (default: the
+largest count, then the largest resolution). `--icp` adds our depth-alignment extension, which reads the
+end-effector model from `<dataset>/models/`.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from eval.methods import register
+from eval.methods.base import Estimate, Observation
+from feepe.backbones import get_backbone
+from feepe.candidates import SingleFrameOptions
+from feepe.estimator import Estimator, FeepeOptions, describe
+from feepe.icp import SurfaceModel
+from feepe.onboarding import onboard
+from syneepose.bop import SceneMeta
+from syneepose.errors import UserError
+
+_SET = re.compile(r"^(?P<ee>.+)_(?P<views>\d+)x(?P<inplane>\d+)_(?P<res>\d+)px$")
+
+
+def find_template_set(root: Path, ee: str, n_templates: int | None) -> Path:
+    sets = []
+    for p in sorted(Path(root).glob(f"{ee}_*")):
+        m = _SET.match(p.name)
+        if m and m["ee"] == ee and (p / "templates.json").is_file():
+            sets.append((int(m["views"]) * int(m["inplane"]), int(m["res"]), p))
+    if n_templates is not None:
+        sets = [s for s in sets if s[0] == n_templates]
+    if not sets:
+        wanted = f"{n_templates} templates" if n_templates else "templates"
+        raise UserError(f"no {wanted} for {ee} in {root}; render them with `python -m syneepose templates --out "
+                        f"DATASET --ee {ee}` (--views x --inplane = the count)")
+    return max(sets)[2]
+
+
+@register("feepe")
+class Feepe:
+    def __init__(self, variant: str = "D", backbone: str = "sift+normals", layer: int | None = None,
+                 n_templates: int | None = None, k_r: int = 5, k_f: int = 8, backbone_weights: str | None = None,
+                 templates_dir: str | None = None, icp: bool = False):
+        self.opts = FeepeOptions(variant=variant, k_f=k_f, icp=icp, single=SingleFrameOptions(k_r=k_r))
+        kwargs = {}
+        if backbone.startswith("dinov2"):
+            kwargs = {"layer": layer, "weights": backbone_weights}
+        elif layer is not None or backbone_weights is not None:
+            raise UserError(f"--layer and --backbone-weights are DINOv2 options; backbone {backbone!r} has neither")
+        self.backbone = get_backbone(backbone, **kwargs)
+        self.n_templates, self.templates_dir = n_templates, templates_dir
+        self._estimators: dict[str, Estimator] = {}
+        self._current: Estimator | None = None
+
+    def options(self) -> dict:
+        """The table keys first (variant, backbone, layer, n_templates, k_r, k_f), then every detail."""
+        return {"variant": self.opts.variant, "icp": self.opts.icp, "backbone": self.backbone.name,
+                "layer": self.backbone.options().get("layer"), "n_templates": self.n_templates,
+                "k_r": self.opts.single.k_r, "k_f": self.opts.k_f, "estimator": describe(self.opts, self.backbone)}
+
+    def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
+        ee = meta.end_effector
+        if ee not in self._estimators:
+            root = Path(self.templates_dir) if self.templates_dir else Path(scene_dir).parents[1] / "templates"
+            folder = find_template_set(root, ee, self.n_templates)
+            bank = onboard(folder, self.backbone, self.opts.single.pad)
+            model = None
+            if self.opts.icp:
+                model = SurfaceModel.from_ply(Path(scene_dir).parents[1] / "models" / f"obj_{meta.obj_id:06d}.ply")
+            self._estimators[ee] = Estimator(bank, self.backbone, self.opts, model)
+        self._current = self._estimators[ee]
+        self._current.reset()
+
+    def estimate(self, obs: Observation) -> Estimate:
+        r = self._current.step(obs.rgb, obs.depth, obs.mask, obs.K, obs.T_base_ee)
+        return Estimate(T_cam_ee=r.T_cam_ee, score=r.score, time_s=r.timings["total"] / 1000.0,
+                        T_cam_base=r.T_cam_base, extra={"timings_ms": r.timings, "n_key_frames": r.n_key_frames})

@@ -1,0 +1,77 @@
+"""Depth alignment (our extension, off in the paper's variants): point-to-plane ICP of the end-effector
+model against the masked depth of every key frame at once, through the same camera-to-base unknown.
+
+The paper's L_3D ties each feature match to the depth at its pixel, so a match's quantisation (a grid
+step on the template) stays in the pose. Re-associating the depth points with the nearest model surface
+point removes that floor; the CAD model is an input of the method already (the templates are rendered
+from it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from feepe.depth import backproject
+from syneepose.errors import UserError
+from syneepose.transforms import inv_T, transform_points
+
+
+@dataclass
+class SurfaceModel:
+    points: np.ndarray  # (M, 3) metres, model frame
+    normals: np.ndarray  # (M, 3)
+
+    def __post_init__(self):
+        self.tree = cKDTree(self.points)
+
+    @classmethod
+    def from_ply(cls, path: Path, n_points: int = 4000, seed: int = 0, scale: float = 0.001) -> "SurfaceModel":
+        """Evenly spread surface samples with their face normals; BOP models are in mm (scale 0.001)."""
+        path = Path(path)
+        if not path.is_file():
+            raise UserError(f"{path}: no such model; depth alignment needs the end-effector's BOP model")
+        mesh = trimesh.load(path, process=False, force="mesh")
+        mesh.apply_scale(scale)
+        points, faces = trimesh.sample.sample_surface_even(mesh, n_points, seed=seed)
+        return cls(np.asarray(points), np.asarray(mesh.face_normals[faces]))
+
+
+def observed_cloud(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, max_points: int = 600) -> np.ndarray:
+    """Camera points of the mask (eroded by 2 px: silhouette pixels mix surfaces), at most `max_points`."""
+    inner = cv2.erode(mask.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    v, u = np.nonzero(inner & (depth > 0))
+    step = max(1, int(np.ceil(len(u) / max_points)))
+    uv = np.stack([u[::step], v[::step]], 1).astype(np.float64)
+    return backproject(uv, depth[v[::step], u[::step]], K)
+
+
+@dataclass
+class PlaneTerms:
+    base_points: np.ndarray  # (N, 3) the associated model points in the robot base frame
+    base_normals: np.ndarray  # (N, 3) their normals in the base frame
+    target_cam: np.ndarray  # (N, 3) the observed depth points, camera frame
+
+
+def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel,
+              gate_m: float) -> PlaneTerms:
+    """frames: (T_base_ee, observed cloud) each; each observed point pairs with its nearest model point
+    within `gate_m`."""
+    base, normals, target = [], [], []
+    for T_base_ee, cloud in frames:
+        if len(cloud) == 0:
+            continue
+        in_model = transform_points(inv_T(T_cam_base @ T_base_ee), cloud)
+        dist, idx = model.tree.query(in_model, distance_upper_bound=gate_m)
+        ok = np.isfinite(dist)
+        base.append(transform_points(T_base_ee, model.points[idx[ok]]))
+        normals.append(model.normals[idx[ok]] @ T_base_ee[:3, :3].T)
+        target.append(cloud[ok])
+    if not base:
+        return PlaneTerms(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
+    return PlaneTerms(np.concatenate(base), np.concatenate(normals), np.concatenate(target))
