@@ -60,6 +60,8 @@ def load_runs(folders: list[Path]) -> list[Run]:
     for run in runs:
         s = run.summary
         method = run.options.get("name") or s["method"].upper()
+        if run.options.get("variant"):
+            method += f" {run.options['variant']}" + (" + depth ICP (ours)" if run.options.get("icp") else "")
         details = [v for v in (s.get("backbone"), s["dataset"].get("preset") or Path(s["dataset"]["path"]).name) if v]
         run.label = f"{method} ({', '.join(details)})"
     repeated = Counter(run.label for run in runs)

@@ -20,14 +20,22 @@ class BowIndex:
     knn: int = 3
 
     def __post_init__(self):
-        self._words_index = _word_index(self.words)
+        self._words_sq = np.sum(self.words**2, 1)
 
     def project(self, desc: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(((desc - self.mean) @ self.components).astype(np.float32))
 
     def vector(self, desc: np.ndarray) -> np.ndarray:
         """Unit TF-IDF vector of one image's descriptors."""
-        hist = _soft_histogram(self.project(desc), self._words_index, self.sigma, self.knn)
+        x = self.project(desc)
+        d2 = np.sum(x**2, 1)[:, None] - 2.0 * (x @ self.words.T) + self._words_sq
+        rows, ids = np.arange(len(x)), np.zeros((len(x), self.knn), int)
+        for k in range(self.knn):  # k argmin passes beat a partition for k = 3
+            ids[:, k] = d2.argmin(1)
+            if k + 1 < self.knn:
+                d2[rows, ids[:, k]] = np.inf
+        d2[rows[:, None], ids] = np.sum((x[:, None, :] - self.words[ids]) ** 2, -1)
+        hist = _soft_histogram(np.maximum(d2[rows[:, None], ids], 0.0), ids, len(self.words), self.sigma)
         v = hist * self.idf
         return v / max(np.linalg.norm(v), 1e-12)
 
@@ -44,16 +52,16 @@ def _word_index(words: np.ndarray):
     return index
 
 
-def _soft_histogram(x: np.ndarray, words, sigma: float, knn: int) -> np.ndarray:
-    """words: a faiss index over the word vectors."""
-    hist = np.zeros(words.ntotal)
-    if len(x) == 0:
+def _soft_histogram(d2: np.ndarray, ids: np.ndarray, n_words: int, sigma: float) -> np.ndarray:
+    """Each feature spreads a unit vote over its nearest words (squared distances d2, word ids) with a
+    Gaussian kernel; the histogram is normalised by the number of features."""
+    hist = np.zeros(n_words)
+    if len(d2) == 0:
         return hist
-    d2, ids = words.search(x, knn)
-    w = np.exp(-d2 / (2.0 * sigma**2))
-    w /= np.maximum(w.sum(1, keepdims=True), 1e-12)
+    w = np.exp(-(d2 - d2.min(1, keepdims=True)) / (2.0 * sigma**2))
+    w /= w.sum(1, keepdims=True)
     np.add.at(hist, ids.ravel(), w.ravel())
-    return hist / len(x)
+    return hist / len(d2)
 
 
 def build_index(per_template: list[np.ndarray], n_words: int = 2048, dims: int = 256, n_fit: int = 100_000,
@@ -77,7 +85,7 @@ def build_index(per_template: list[np.ndarray], n_words: int = 2048, dims: int =
     sigma = float(np.sqrt(max(np.median(d2), 1e-12)))
 
     index = BowIndex(mean, components, words, sigma, np.ones(n_words), np.zeros((len(per_template), n_words)), knn)
-    hists = np.stack([_soft_histogram(index.project(f), word_index, sigma, knn) for f in per_template])
+    hists = np.stack([_soft_histogram(*word_index.search(index.project(f), knn), n_words, sigma) for f in per_template])
     present = (hists > 0).sum(0)
     index.idf = np.log(len(per_template) / np.maximum(present, 1))
     tfidf = hists * index.idf

@@ -48,7 +48,7 @@ class SingleFrameOptions:
     k_r: int = 5
     max_matches: int = 300
     pnp_threshold_px: float = 4.0  # crop pixels
-    pnp_iterations: int = 200
+    pnp_iterations: int = 100
     min_mask_px: int = 64
 
 

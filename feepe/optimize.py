@@ -84,9 +84,9 @@ class _Problem:
         dpi[:, 0, 2] = -K[:, 0] * P[:, 0] / z**2
         dpi[:, 1, 1] = K[:, 1] / z
         dpi[:, 1, 2] = -K[:, 1] * P[:, 1] / z**2
-        jacobians = [np.einsum("nij,njk->nik", dpi, dP) / self.sigma_px, dP[self.depth] * self.k3]
+        jacobians = [(dpi @ dP) / self.sigma_px, dP[self.depth] * self.k3]
         if self.planes is not None:  # the normal is held fixed within a step, as usual for point-to-plane
-            jacobians.append(-np.einsum("ni,nik->nk", n, _d_point(Qp))[:, None, :] * self.k_plane)
+            jacobians.append(-(n[:, None, :] @ _d_point(Qp)) * self.k_plane)
         return blocks, jacobians
 
 
@@ -128,9 +128,10 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions, plane
     for _ in range(opts.max_iterations):
         H, g = np.zeros((6, 6)), np.zeros(6)
         for e, J in zip(blocks, jacobians):
-            w = 1.0 / (1.0 + np.sum(e**2, 1))
-            H += np.einsum("n,nik,nil->kl", w, J, J)
-            g += np.einsum("n,ni,nik->k", w, e, J)
+            w = np.repeat(1.0 / (1.0 + np.sum(e**2, 1)), e.shape[1])
+            J = J.reshape(-1, 6)
+            H += (J * w[:, None]).T @ J
+            g += J.T @ (w * e.ravel())
         while True:
             x = np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), -g)
             T_new = _step(T, x)

@@ -20,3 +20,27 @@ def catalog():
     from syneepose.robots.catalog import load_catalog
 
     return load_catalog()
+
+
+TINY_CONFIGS = ("ur5e+robotiq_2f85", "panda+kinova_3f")
+TINY_TEMPLATES = ("12", "4", "96")  # views, in-plane rotations, pixels
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory, assets) -> Path:
+    """A small rendered data set with templates, through the real CLI: 2 segments of 6 frames at 160x120
+    and 48 templates per end-effector. Used by the FEEPE, evaluator and report tests."""
+    import subprocess
+    import sys
+
+    out = tmp_path_factory.mktemp("tiny")
+    render = [sys.executable, "-m", "syneepose", "render", "--preset", "mini", "--out", str(out), "--robots",
+              ",".join(TINY_CONFIGS), "--segments", "1", "--frames", "6", "--resolution", "160x120", "--samples", "4"]
+    views, inplane, res = TINY_TEMPLATES
+    templates = [sys.executable, "-m", "syneepose", "templates", "--out", str(out), "--ee",
+                 ",".join(c.split("+")[1] for c in TINY_CONFIGS), "--views", views, "--inplane", inplane,
+                 "--resolution", res, "--samples", "4"]
+    for cmd in (render, templates):
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    return out

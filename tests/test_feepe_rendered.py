@@ -1,0 +1,106 @@
+"""FEEPE end to end on real renders (the `tiny_dataset` fixture): onboarding cache, candidates, the
+variants, depth alignment, and frames it cannot use."""
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eval.methods.feepe import find_template_set
+from feepe.backbones import get_backbone
+from feepe.estimator import Estimator, FeepeOptions
+from feepe.icp import SurfaceModel
+from feepe.onboarding import onboard
+from syneepose.bop import read_frame, read_scene
+from syneepose.errors import UserError
+from syneepose.transforms import rotation_angle
+
+
+def _scene(root, ee):
+    for scene in sorted((root / "train").iterdir()):
+        meta, ids = read_scene(scene)
+        if meta.end_effector == ee:
+            return meta, [read_frame(scene, i) for i in ids]
+    raise AssertionError(ee)
+
+
+@pytest.fixture(scope="module")
+def bank_2f85(tiny_dataset, tmp_path_factory):
+    cache = tmp_path_factory.mktemp("cache")
+    folder = find_template_set(tiny_dataset / "templates", "robotiq_2f85", None)
+    net = get_backbone("sift+normals")
+    t0 = time.perf_counter()
+    bank = onboard(folder, net, cache_dir=cache)
+    cold = time.perf_counter() - t0
+    return bank, net, folder, cache, cold
+
+
+def test_onboarding_is_cached_and_lifts_points_onto_the_model(bank_2f85, tiny_dataset):
+    bank, net, folder, cache, cold = bank_2f85
+    assert len(bank) == 48 and len(list(cache.glob("*.npz"))) == 1
+    t0 = time.perf_counter()
+    again = onboard(folder, net, cache_dir=cache)
+    assert time.perf_counter() - t0 < cold
+    np.testing.assert_array_equal(again.desc, bank.desc)
+    np.testing.assert_array_equal(again.bow.template_vectors, bank.bow.template_vectors)
+    # every lifted template point lies on the model surface
+    model = SurfaceModel.from_ply(tiny_dataset / "models" / "obj_000002.ply", n_points=20000)
+    dist, _ = model.tree.query(bank.xyz)
+    assert np.median(dist) < 0.002 and np.quantile(dist, 0.95) < 0.005
+    other = onboard(folder, get_backbone("sift+normals", stride=6), cache_dir=cache)
+    assert len(list(cache.glob("*.npz"))) == 2 and len(other.uv) < len(bank.uv)
+
+
+def _run(bank, net, frames, **options):
+    est = Estimator(bank, net, FeepeOptions(**{k: v for k, v in options.items() if k != "model"}),
+                    options.get("model"))
+    return [est.step(f.rgb, f.depth, f.mask_visib, f.K, f.T_base_ee) for f in frames]
+
+
+def test_full_method_with_depth_alignment_tracks_the_gripper(bank_2f85, tiny_dataset):
+    bank, net, *_ = bank_2f85
+    meta, frames = _scene(tiny_dataset, "robotiq_2f85")
+    model = SurfaceModel.from_ply(tiny_dataset / "models" / f"obj_{meta.obj_id:06d}.ply")
+    results = _run(bank, net, frames, variant="D", icp=True, model=model)
+    # a 2F-85 estimate is right up to its 180 deg symmetry about z
+    flip = np.diag([-1.0, -1.0, 1.0])
+    rot = [min(rotation_angle(r.T_cam_ee[:3, :3], f.T_cam_ee[:3, :3]),
+               rotation_angle(r.T_cam_ee[:3, :3] @ flip, f.T_cam_ee[:3, :3])) for r, f in zip(results, frames)]
+    trans = [np.linalg.norm(r.T_cam_ee[:3, 3] - f.T_cam_ee[:3, 3]) for r, f in zip(results, frames)]
+    assert np.rad2deg(np.median(rot)) < 5.0 and np.median(trans) < 0.01
+    calib = [np.linalg.norm(r.T_cam_base[:3, 3] - meta.T_cam_base[:3, 3]) for r in results]
+    assert np.median(calib) < 0.02
+    assert all(set(r.timings) >= {"backbone", "retrieval", "matching", "pnp", "optimisation", "total"} for r in results)
+
+
+def test_variant_a_is_single_frame_pnp(bank_2f85, tiny_dataset):
+    bank, net, *_ = bank_2f85
+    _, frames = _scene(tiny_dataset, "robotiq_2f85")
+    results = _run(bank, net, frames, variant="A")
+    assert all(r.n_key_frames == 0 for r in results)
+    assert sum(r.T_cam_ee is not None for r in results) >= len(frames) - 1
+    assert all(r.score == 0 or r.score >= 6 for r in results)  # inlier counts of a PnP solution
+
+
+def test_unusable_frames_are_recorded_no_estimates_and_the_run_goes_on(bank_2f85, tiny_dataset):
+    bank, net, *_ = bank_2f85
+    _, frames = _scene(tiny_dataset, "robotiq_2f85")
+    f = frames[0]
+    est = Estimator(bank, net, FeepeOptions(variant="B"))
+    empty = est.step(f.rgb, f.depth, np.zeros_like(f.mask_visib), f.K, f.T_base_ee)
+    assert empty.T_cam_ee is None and empty.n_candidates == 0
+    tiny = np.zeros_like(f.mask_visib)
+    tiny[60, 80] = True
+    assert est.step(f.rgb, f.depth, tiny, f.K, f.T_base_ee).T_cam_ee is None
+    black = est.step(np.zeros_like(f.rgb), np.zeros_like(f.depth), f.mask_visib, f.K, f.T_base_ee)
+    assert black.T_cam_ee is None or np.isfinite(black.T_cam_ee).all()
+    assert est.step(f.rgb, f.depth, f.mask_visib, f.K, f.T_base_ee).T_cam_ee is not None
+    with pytest.raises(UserError, match="image sizes differ"):
+        est.step(f.rgb, f.depth[:-1], f.mask_visib, f.K, f.T_base_ee)
+    with pytest.raises(UserError, match="another resolution"):
+        est.step(f.rgb, f.depth, f.mask_visib, f.K * [[4], [4], [1]], f.T_base_ee)
+    with pytest.raises(UserError, match="variant A is PnP only"):
+        FeepeOptions(variant="A", icp=True)
+    with pytest.raises(UserError, match="needs the end-effector model"):
+        Estimator(bank, net, FeepeOptions(icp=True))
