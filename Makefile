@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup assets dataset test bench clean-assets
+.PHONY: setup assets dataset tables test bench clean-assets
 
 setup: $(STAMP)
 
@@ -26,12 +26,25 @@ dataset: assets
 	$(PY) -m syneepose render --preset mini --out $(DATA)
 	$(PY) -m syneepose templates --preset mini --out $(DATA)
 
+# The paper's tables on $(DATA): the ablation variants, depth alignment, and the K_r / K_f sweeps.
+RESULTS ?= results/mini
+RUN := $(PY) -m eval.run --method feepe --dataset $(DATA)
+
+tables: dataset
+	for v in A B C D; do $(RUN) --variant $$v --out $(RESULTS)/feepe-$$v; done
+	$(RUN) --icp --out $(RESULTS)/feepe-D-icp
+	for k in 1 3 10; do $(RUN) --k-r $$k --out $(RESULTS)/feepe-kr$$k; done
+	for k in 2 4 16; do $(RUN) --k-f $$k --out $(RESULTS)/feepe-kf$$k; done
+	$(PY) -m eval.tables $(RESULTS)/feepe-* --out $(RESULTS)/tables
+
 test: assets
 	$(PY) -m pytest -x -q
 
-bench: assets
+bench: dataset
 	$(PY) benchmarks/assets_build.py
 	$(PY) benchmarks/render.py
+	$(PY) benchmarks/feepe.py --dataset $(DATA)
+	$(PY) benchmarks/metrics.py
 
 clean-assets:
 	rm -rf assets

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from eval.methods.feepe import find_template_set
-from feepe.backbones import get_backbone
+from feepe.backbones import DEFAULT, get_backbone
 from feepe.estimator import Estimator, FeepeOptions
 from feepe.onboarding import onboard
 from syneepose.bop import read_frame, read_scene
@@ -23,7 +23,7 @@ STAGES = ("backbone", "retrieval", "matching", "pnp", "optimisation", "total")
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--dataset", default="data/mini")
-    parser.add_argument("--backbone", default="sift+normals")
+    parser.add_argument("--backbone", default=DEFAULT)
     parser.add_argument("--frames", type=int, default=0, help="frames per scene (0: all)")
     args = parser.parse_args()
     root = Path(args.dataset)

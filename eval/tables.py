@@ -62,6 +62,9 @@ def load_runs(folders: list[Path]) -> list[Run]:
         method = run.options.get("name") or s["method"].upper()
         if run.options.get("variant"):
             method += f" {run.options['variant']}" + (" + depth ICP (ours)" if run.options.get("icp") else "")
+        for key, paper, title in (("k_r", 5, "K_r"), ("k_f", 8, "K_f")):
+            if run.options.get(key) not in (None, paper):
+                method += f" {title}={run.options[key]}"
         details = [v for v in (s.get("backbone"), s["dataset"].get("preset") or Path(s["dataset"]["path"]).name) if v]
         run.label = f"{method} ({', '.join(details)})"
     repeated = Counter(run.label for run in runs)
@@ -83,11 +86,24 @@ def _pair(acc: dict | None) -> str:
     return NONE if acc is None else _slash(acc["add@1cm"], acc["adds@1cm"])
 
 
+PAPER_CHOICES = {"n_templates": 960, "k_r": 5, "k_f": 8}
+
+
+def _is_sweep(run: Run) -> bool:
+    """A run that varies K_r or K_f away from the paper's choice (a template count is a data choice)."""
+    return any(run.options.get(k) not in (None, PAPER_CHOICES[k]) for k in ("k_r", "k_f"))
+
+
+def _main_runs(runs: list[Run]) -> list[Run]:
+    """Table I and the robot-pose table: full-method runs at the paper's settings (not ablations, sweeps)."""
+    return [run for run in runs if run.options.get("variant") in (None, "D") and not _is_sweep(run)]
+
+
 def table1(runs: list[Run]) -> Table:
     header = ["Method", *(reported.COLUMN_TITLES[c] for c in reported.TABLE1_COLUMNS), "Speed (ms)"]
     rows = [[f"{name} (reported)", *(_slash(*cells[c]) for c in reported.TABLE1_COLUMNS), str(speed)]
             for name, (cells, speed) in reported.TABLE1.items()]
-    for run in runs:
+    for run in _main_runs(runs):
         per_ee = run.summary["per_end_effector"]
         cells = [_pair(per_ee.get(c)) for c in reported.TABLE1_COLUMNS[:-2]]
         rows.append([run.label, *cells, NONE, _pair(run.summary["average"]), _num(run.summary["ms_per_frame"], 0)])
@@ -99,15 +115,19 @@ def table1(runs: list[Run]) -> Table:
 
 
 def _option_rows(runs: list[Run], option: str) -> list[tuple[object, Run]]:
-    return sorted(((run.options[option], run) for run in runs if run.options.get(option) is not None),
-                  key=lambda pair: (str(pair[0]), pair[1].label))
+    def order(pair):
+        value = pair[0]
+        return (0, value, "") if isinstance(value, (int, float)) else (1, 0, str(value)), pair[1].label
+
+    return sorted(((run.options[option], run) for run in runs if run.options.get(option) is not None), key=order)
 
 
 def ablation(runs: list[Run]) -> Table:
     rows = [[variant, "FEEPE (reported)", f"{add:.2f}", f"{adds:.2f}"]
             for variant, (add, adds) in reported.ABLATION.items()]
     rows += [[str(variant), run.label, _num(run.summary["average"]["add@1cm"]),
-              _num(run.summary["average"]["adds@1cm"])] for variant, run in _option_rows(runs, "variant")]
+              _num(run.summary["average"]["adds@1cm"])]
+             for variant, run in _option_rows([r for r in runs if not _is_sweep(r)], "variant")]
     return Table("ablation", "Ablation: average AUC@1cm", ["Variant", "Method", "ADD", "ADD-S"], rows, [
         "A: PnP on 2D-3D matches; B: + single-frame optimisation; C: + key-frame optimisation; "
         "D: + symmetry disambiguation (the full method)."])
@@ -126,9 +146,12 @@ def hyperparameters(runs: list[Run]) -> Table:
     for option, title in reported.HYPERPARAMETER_TITLES.items():
         rows += [[title, str(value), "FEEPE (reported)", f"{add:.2f}", f"{adds:.2f}", str(speed)]
                  for value, (add, adds, speed) in reported.HYPERPARAMETERS[option].items()]
+        others = {k: v for k, v in PAPER_CHOICES.items() if k != option}
+        full = [r for r in runs if r.options.get("variant") in (None, "D") and not r.options.get("icp")
+                and all(r.options.get(k) in (None, v) for k, v in others.items())]
         rows += [[title, str(value), run.label, _num(run.summary["average"]["add@1cm"]),
                   _num(run.summary["average"]["adds@1cm"]), _num(run.summary["ms_per_frame"], 0)]
-                 for value, run in _option_rows(runs, option)]
+                 for value, run in _option_rows(full, option)]
     return Table("hyperparameters", "Hyperparameters: average AUC@1cm and speed",
                  ["Hyperparameter", "Value", "Method", "ADD", "ADD-S", "Speed (ms)"], rows,
                  ["Reported choices: 960 templates, 5 reference views, 8 keyframes."])
@@ -138,7 +161,7 @@ def robot_pose(runs: list[Run]) -> Table:
     rows = [[f"{name} (reported)", "yes" if free else "no", f"{add:.2f}", f"{adds:.2f}", "RealSense-Franka"]
             for name, (free, add, adds) in reported.ROBOT_POSE.items()]
     rows += [[run.label, NONE, _num(run.summary["average"]["add@2cm"]), _num(run.summary["average"]["adds@2cm"]),
-              run.summary["dataset"].get("preset") or NONE] for run in runs]
+              run.summary["dataset"].get("preset") or NONE] for run in _main_runs(runs)]
     return Table("robot_pose", "Robot pose: AUC@2cm of ADD and ADD-S",
                  ["Method", "Training-free", "ADD@2cm", "ADD-S@2cm", "Data set"], rows,
                  ["Reported rows are on the real RealSense-Franka set; measured rows average the end-effectors "

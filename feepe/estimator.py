@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import FrameCandidates, SingleFrameOptions, frame_candidates
 from feepe.icp import SurfaceModel, associate, observed_cloud
@@ -70,7 +71,7 @@ class Estimator:
         self.reset()
 
     @classmethod
-    def from_templates(cls, folder: Path, backbone: str = "sift+normals", options: FeepeOptions | None = None,
+    def from_templates(cls, folder: Path, backbone: str = DEFAULT_BACKBONE, options: FeepeOptions | None = None,
                        cache_dir: Path | None = None, model_path: Path | None = None,
                        **backbone_kwargs) -> "Estimator":
         """model_path (the BOP .ply, mm) is needed only for the depth-alignment extension."""

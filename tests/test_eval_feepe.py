@@ -29,7 +29,7 @@ def test_run_writes_results_errors_and_summary(feepe_results, tiny_dataset):
     assert header == "scene_id,im_id,obj_id,score,R,t,time"
     assert len((folder / "errors.csv").read_text().splitlines()) == 1 + 12  # 2 scenes x 6 frames
     summary = json.loads((folder / "summary.json").read_text())
-    assert summary["options"]["variant"] == "D" and summary["backbone"] == "sift+normals"
+    assert summary["options"]["variant"] == "D" and summary["backbone"] == "sift+normals+color"
     assert set(summary["per_end_effector"]) == {"robotiq_2f85", "kinova_3f"}
     icp = json.loads((feepe_results / "D+icp" / "summary.json").read_text())
     assert icp["options"]["icp"] is True and 0 <= icp["average"]["adds@1cm"] <= 100
@@ -40,7 +40,9 @@ def test_tables_and_curves_from_feepe_runs(feepe_results, tmp_path):
     proc = _run("eval.tables", *(str(feepe_results / v) for v in ("A", "D", "D+icp")), "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-2000:]
     ablation = (out / "ablation.md").read_text()
-    assert "FEEPE A (sift+normals, mini)" in ablation and "FEEPE D + depth ICP (ours) (sift+normals, mini)" in ablation
+    assert "FEEPE A (sift+normals+color, mini)" in ablation and "FEEPE D + depth ICP (ours) (sift+normals+color, mini)" in ablation
+    table1 = (out / "table1.md").read_text()
+    assert "FEEPE D (sift+normals+color, mini)" in table1 and "FEEPE A (" not in table1  # ablations stay out
     assert (out / "accuracy_curves.png").stat().st_size > 10_000
 
 

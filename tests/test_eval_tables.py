@@ -39,7 +39,7 @@ def result_dirs(tmp_path_factory, assets):
     assert run.main(["--method", "bop-csv", "--out", str(root / "peer"), "--results", str(offset),
                      "--name", "Peer", *common]) == 0
     assert run.main(["--method", "test-tuned", "--out", str(root / "tuned"), "--results", str(exact),
-                     "--name", "Tuned", "--variant", "C", *common]) == 0
+                     "--name", "Tuned", "--variant", "D", *common]) == 0
     return root / "peer", root / "tuned"
 
 
@@ -59,7 +59,7 @@ def test_all_tables_in_three_formats_with_measured_and_reported_rows(result_dirs
     assert table1["FEEPE (reported)"][1:] == ["85.24/86.29", "85.24/86.36", "84.53/85.23", "88.73/91.67",
                                               "84.33/86.11", "84.87/86.15", "29.27/48.71", "77.46/81.50", "67"]
     assert table1["MegaPose† (reported)"][-1] == "2980"
-    tuned, peer = table1["Tuned C (sift-normals, synthetic)"], table1["Peer (synthetic)"]
+    tuned, peer = table1["Tuned D (sift-normals, synthetic)"], table1["Peer (synthetic)"]
     kinova, gripper = reported.TABLE1_COLUMNS.index("kinova_3f") + 1, reported.TABLE1_COLUMNS.index("robotiq_2f85") + 1
     assert tuned[kinova] == tuned[gripper] == "100.00/100.00" and tuned[1] == "–"  # no Franka hand scene
     assert float(peer[kinova].split("/")[0]) == pytest.approx(70.0, abs=0.1)  # ADD = 3 mm
@@ -67,18 +67,18 @@ def test_all_tables_in_three_formats_with_measured_and_reported_rows(result_dirs
 
     ablation = _rows(out / "ablation.csv")
     assert ["A", "FEEPE (reported)", "7.50", "19.49"] in ablation
-    assert ["C", "Tuned C (sift-normals, synthetic)", "100.00", "100.00"] in ablation
+    assert ["D", "Tuned D (sift-normals, synthetic)", "100.00", "100.00"] in ablation
     assert not any("Peer" in row[1] for row in ablation)  # no variant option: not an ablation row
-    assert ["19", "Tuned C (sift-normals, synthetic)", "100.00", "100.00"] in _rows(out / "layers.csv")
+    assert ["19", "Tuned D (sift-normals, synthetic)", "100.00", "100.00"] in _rows(out / "layers.csv")
     hyper = _rows(out / "hyperparameters.csv")
     assert ["Reference views", "10", "FEEPE (reported)", "77.98", "81.86", "81"] in hyper
-    assert ["Keyframes", "8", "Tuned C (sift-normals, synthetic)", "100.00", "100.00", "50"] in hyper
+    assert ["Keyframes", "8", "Tuned D (sift-normals, synthetic)", "100.00", "100.00", "50"] in hyper
     robot = {row[0]: row for row in _rows(out / "robot_pose.csv")}
     assert robot["RoboKeyGen (reported)"][1:] == ["no", "9.35", "29.99", "RealSense-Franka"]
     assert float(robot["Peer (synthetic)"][2]) == pytest.approx(85.0, abs=0.1)  # 3 mm at 2 cm
 
     markdown, latex = (out / "table1.md").read_text(), (out / "table1.tex").read_text()
-    assert "| Tuned C (sift-normals, synthetic) | – | 100.00/100.00 |" in markdown
+    assert "| Tuned D (sift-normals, synthetic) | – | 100.00/100.00 |" in markdown
     assert r"MegaPose\dag{} (reported) & " in latex and r"\begin{tabular}{llllllllll}" in latex
     combined = (out / "tables.md").read_text()
     assert all(f"## {t}" in combined for t in ("Table I", "Ablation", "DINOv2 layer", "Hyperparameters",

@@ -99,7 +99,7 @@ def test_missing_weights_say_how_to_provide_them(tmp_path, monkeypatch):
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     monkeypatch.setenv("HF_HOME", str(tmp_path / "hf"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
-    with pytest.raises(UserError, match="no local weights for dinov2_vitl14.*sift\\+normals"):
+    with pytest.raises(UserError, match="no local weights for dinov2_vitl14.*sift\\+normals\\+color"):
         get_backbone("dinov2_vitl14")
     with pytest.raises(UserError, match="unknown"):
         get_backbone("dinov2_vitx14")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from eval.methods.feepe import find_template_set
-from feepe.backbones import get_backbone
+from feepe.backbones import DEFAULT, get_backbone
 from feepe.estimator import Estimator, FeepeOptions
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
@@ -29,7 +29,7 @@ def _scene(root, ee):
 def bank_2f85(tiny_dataset, tmp_path_factory):
     cache = tmp_path_factory.mktemp("cache")
     folder = find_template_set(tiny_dataset / "templates", "robotiq_2f85", None)
-    net = get_backbone("sift+normals")
+    net = get_backbone(DEFAULT)
     t0 = time.perf_counter()
     bank = onboard(folder, net, cache_dir=cache)
     cold = time.perf_counter() - t0
@@ -48,7 +48,7 @@ def test_onboarding_is_cached_and_lifts_points_onto_the_model(bank_2f85, tiny_da
     model = SurfaceModel.from_ply(tiny_dataset / "models" / "obj_000002.ply", n_points=20000)
     dist, _ = model.tree.query(bank.xyz)
     assert np.median(dist) < 0.002 and np.quantile(dist, 0.95) < 0.005
-    other = onboard(folder, get_backbone("sift+normals", stride=6), cache_dir=cache)
+    other = onboard(folder, get_backbone(DEFAULT, stride=6), cache_dir=cache)
     assert len(list(cache.glob("*.npz"))) == 2 and len(other.uv) < len(bank.uv)
 
 

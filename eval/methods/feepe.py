@@ -13,6 +13,7 @@ from pathlib import Path
 
 from eval.methods import register
 from eval.methods.base import Estimate, Observation
+from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import SingleFrameOptions
 from feepe.estimator import Estimator, FeepeOptions, describe
@@ -41,7 +42,7 @@ def find_template_set(root: Path, ee: str, n_templates: int | None) -> Path:
 
 @register("feepe")
 class Feepe:
-    def __init__(self, variant: str = "D", backbone: str = "sift+normals", layer: int | None = None,
+    def __init__(self, variant: str = "D", backbone: str = DEFAULT_BACKBONE, layer: int | None = None,
                  n_templates: int | None = None, k_r: int = 5, k_f: int = 8, backbone_weights: str | None = None,
                  templates_dir: str | None = None, icp: bool = False):
         self.opts = FeepeOptions(variant=variant, k_f=k_f, icp=icp, single=SingleFrameOptions(k_r=k_r))

@@ -42,7 +42,7 @@ def _pooled(values: np.ndarray, valid: np.ndarray, uv: np.ndarray, cell: int) ->
 
 @dataclass
 class DenseBackbone:
-    parts: tuple[str, ...] = ("sift", "normals")
+    parts: tuple[str, ...] = ("sift", "normals", "color")
     crop_size: int = 128
     stride: int = 4
     sift_size: float = 16.0

@@ -131,7 +131,7 @@ def load_model(name: str, weights: str | Path | None = None):
     raise UserError(f"no local weights for {name}; looked in {' and '.join(looked)}. On a machine with internet, "
                     f"fetch `{hf_repo(name)}` into the Hugging Face cache or the torch-hub checkpoint "
                     f"{ckpt.name} from dl.fbaipublicfiles.com/dinov2/, copy it here, or pass its path as the "
-                    "backbone weights; or use the weight-free backbone `sift+normals`")
+                    "backbone weights; or use the weight-free backbone `sift+normals+color`")
 
 
 @dataclass
