@@ -43,7 +43,7 @@ test: assets
 bench: dataset
 	$(PY) benchmarks/assets_build.py
 	$(PY) benchmarks/render.py
-	$(PY) benchmarks/feepe.py --dataset $(DATA)
+	$(PY) benchmarks/estimator.py --dataset $(DATA)
 	$(PY) benchmarks/metrics.py
 
 clean-assets:

@@ -1,6 +1,6 @@
 """FEEPE speed: onboarding time per end-effector and per-stage ms/frame (variant D) on a rendered data set.
 
-Prints figures, asserts nothing: `make bench` or `.venv/bin/python benchmarks/feepe.py [--dataset data/mini]
+Prints figures, asserts nothing: `make bench` or `.venv/bin/python benchmarks/estimator.py [--dataset data/mini]
 [--backbone sift+normals] [--frames N]`. Onboarding runs into a fresh cache folder, so it is timed cold.
 """
 
