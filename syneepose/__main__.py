@@ -1,4 +1,4 @@
-"""Command line: `python -m syneepose assets | render` (see `--help` of each)."""
+"""Command line: `python -m syneepose assets | render | templates | show` (see `--help` of each)."""
 
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def _render(args) -> None:
     jobs = J.make_jobs(args.preset, preset, out, configs, args.seed,
                        args.segments or int(preset["segments"]), args.frames or int(preset["frames"]),
                        width, height, args.samples or int(preset["samples"]), assets, backgrounds,
-                       J.parse_shard(args.shard), args.device)
+                       J.parse_shard(args.shard), args.device, args.marker)
     J.write_dataset_info(out, args.preset, jobs, configs, assets)
     done_before = {j: J.frames_done(j) for j in jobs}
     todo = [j for j in jobs if done_before[j] < j.frames]
@@ -125,6 +125,17 @@ def _templates(args) -> None:
     print(f"templates: {len(jobs)} end-effectors in {out / 'templates'}")
 
 
+def _show(args) -> None:
+    from syneepose.show import write_sheets
+
+    root = Path(args.dataset)
+    out = Path(args.out) if args.out else root / "contact_sheet.png"
+    if out.suffix.lower() != ".png":
+        raise UserError(f"--out {out}: give a .png file name")
+    sheet, written = write_sheets(root, out, args.frames, args.width)
+    print(f"show: {len(sheet.tiles)} configurations in {out}; {len(written) - 1} template sheets beside it")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m syneepose", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -145,6 +156,8 @@ def main(argv=None) -> int:
     r.add_argument("--backgrounds", help="folder of images to put on walls at random")
     r.add_argument("--shard", help="i/N: render every N-th segment starting at i (cluster job arrays)")
     r.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
+    r.add_argument("--marker", action="store_true",
+                   help="bolt a ChArUco board to the end-effector (marker hand-eye segments; same scenes otherwise)")
     r.add_argument("--executor", choices=["local", "ray"], default="local")
     r.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     r.add_argument("--workers", type=int, default=1, help="local worker processes (Cycles uses all cores)")
@@ -162,6 +175,13 @@ def main(argv=None) -> int:
     t.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     t.add_argument("--workers", type=int, default=1, help="local worker processes")
     t.set_defaults(func=_templates)
+    s = sub.add_parser("show", help="contact sheet of a data set and a sheet per template set (PNG)")
+    s.add_argument("dataset", help="data set root (python -m syneepose render --out DIR)")
+    s.add_argument("--out", help="PNG of the contact sheet (default: DATASET/contact_sheet.png); the template "
+                   "sheets go beside it as <name>-templates-<set>.png")
+    s.add_argument("--frames", type=int, default=4, help="frames per configuration")
+    s.add_argument("--width", type=int, default=160, help="width of one frame in pixels")
+    s.set_defaults(func=_show)
     args = parser.parse_args(argv)
     try:
         args.func(args)

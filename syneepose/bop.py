@@ -41,6 +41,7 @@ class SceneMeta:
     joint_names: list[str]
     T_cam_base: np.ndarray  # (4, 4) metres, static in a segment; the BOP world frame is the robot base
     depth_scale: float = 0.1  # mm per depth PNG unit
+    marker: dict | None = None  # MarkerBoard.to_json() when a ChArUco board rides on the end-effector
 
 
 def _image_paths(scene_dir: Path, im_id: int) -> dict[str, Path]:
@@ -133,6 +134,8 @@ class SceneWriter:
             "arm": meta.arm, "end_effector": meta.end_effector, "config": f"{meta.arm}+{meta.end_effector}",
             "joint_names": list(meta.joint_names), "T_cam_base": np.asarray(meta.T_cam_base, dtype=float).tolist(),
             "frames": robot.get("frames", {})}
+        if meta.marker is not None:
+            self._records["scene_robot"]["marker"] = meta.marker
         for sub in ("rgb", "depth", "mask", "mask_visib"):
             (self.scene_dir / sub).mkdir(parents=True, exist_ok=True)
 
@@ -177,7 +180,7 @@ def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
     meta = SceneMeta(obj_id=records["scene_gt"][first][GT_ID]["obj_id"], arm=robot["arm"],
                      end_effector=robot["end_effector"], joint_names=list(robot["joint_names"]),
                      T_cam_base=np.array(robot["T_cam_base"], dtype=float),
-                     depth_scale=records["scene_camera"][first]["depth_scale"])
+                     depth_scale=records["scene_camera"][first]["depth_scale"], marker=robot.get("marker"))
     return meta, im_ids
 
 

@@ -16,16 +16,18 @@ from importlib.metadata import version
 from multiprocessing import get_context
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from syneepose import __version__, paths
 from syneepose.errors import UserError
 from syneepose.robots.catalog import load_catalog
+from syneepose.transforms import inv_T
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 SPLIT = "train"
 PRESET_KEYS = {"name", "segments", "frames", "resolution", "samples", "render", "camera", "motion", "lights",
-               "world", "backdrop", "distractors", "templates"}
+               "world", "backdrop", "distractors", "templates", "marker"}
 
 
 def load_preset(name_or_path: str) -> dict:
@@ -63,6 +65,7 @@ class Job:
     assets: str
     backgrounds: tuple[str, ...] = ()
     device: str = "cpu"
+    marker: bool = False
 
     @property
     def scene_dir(self) -> Path:
@@ -83,14 +86,15 @@ def parse_shard(text: str | None) -> tuple[int, int]:
 
 def make_jobs(preset_name: str, preset: dict, out: Path, configs: list[str], seed: int, segments: int,
               frames: int, width: int, height: int, samples: int, assets: Path,
-              backgrounds: tuple[str, ...] = (), shard: tuple[int, int] = (0, 1), device: str = "cpu") -> list[Job]:
+              backgrounds: tuple[str, ...] = (), shard: tuple[int, int] = (0, 1), device: str = "cpu",
+              marker: bool = False) -> list[Job]:
     all_configs = load_catalog().configurations
     jobs = []
     for config in configs:
         for segment in range(segments):
             scene_id = all_configs.index(config) * segments + segment
             jobs.append(Job(config, scene_id, segment, seed, frames, width, height, samples, str(out), preset_name,
-                            str(assets), backgrounds, device))
+                            str(assets), backgrounds, device, marker))
     i, n = shard
     return jobs[i::n]
 
@@ -116,8 +120,25 @@ def run_job(job: Job) -> int:
     spec = plan_segment(preset, robot, MotionChecks(robot, mesh), job.scene_id, job.seed, job.frames,
                         job.width, job.height, job.samples, list(job.backgrounds))
     spec.device = job.device
+    if job.marker:
+        spec.marker = _mounted_board(preset, robot, mesh, spec)
     with _quiet_stdout():
         return render_segment(spec, robot, job.scene_dir)
+
+
+def _mounted_board(preset: dict, robot, mesh, spec):
+    """The preset's board (`marker:` section, defaults otherwise) turned to face this segment's camera."""
+    from syneepose.scene.marker import MarkerBoard, mount_facing_camera
+
+    params = dict(preset.get("marker") or {})
+    mount = {k: params.pop(k) for k in ("clearance", "height") if k in params}
+    try:
+        board = MarkerBoard(**{k: tuple(v) if k == "squares" else v for k, v in params.items()})
+    except TypeError as exc:
+        raise UserError(f"preset {preset.get('name')}: marker section: {exc}") from None
+    radius = float(np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 1]).max())
+    T_cam_ee = inv_T(spec.T_base_cam) @ robot.T_base_ee(spec.q)
+    return mount_facing_camera(board, T_cam_ee, radius, **mount)
 
 
 @contextmanager

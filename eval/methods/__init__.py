@@ -9,7 +9,8 @@ import importlib
 
 from syneepose.errors import UserError
 
-BUILTIN = {"bop-csv": "eval.methods.bop_csv", "feepe": "eval.methods.feepe"}
+BUILTIN = {"bop-csv": "eval.methods.bop_csv", "feepe": "eval.methods.feepe", "handeye": "eval.methods.handeye",
+           "ppf": "eval.methods.ppf"}
 _REGISTRY: dict[str, type] = {}
 
 

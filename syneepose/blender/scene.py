@@ -18,9 +18,10 @@ import trimesh
 from syneepose.blender.exr import read_passes, srgb_to_linear
 from syneepose.errors import UserError
 from syneepose.robots.model import RobotModel
+from syneepose.scene.marker import MarkerBoard
 from syneepose.scene.spec import Distractor, Light, Plane, Surface
 
-PASS_EE, PASS_ARM = 1, 2
+PASS_EE, PASS_ARM, PASS_BOARD = 1, 2, 3
 MAIN, EE_ONLY = "main", "ee_only"
 BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
@@ -46,7 +47,7 @@ def reset(width: int, height: int, samples: int, denoise: bool = False, max_boun
     scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
     scene.render.image_settings.file_format = "OPEN_EXR_MULTILAYER"
     scene.render.image_settings.color_depth = "32"
-    for name in ("robot", "ee", "backdrop"):
+    for name in ("robot", "ee", "backdrop", "board"):
         scene.collection.children.link(bpy.data.collections.new(name))
     main = scene.view_layers[0]
     main.name = MAIN
@@ -237,6 +238,41 @@ def add_distractors(distractors: list[Distractor]) -> None:
         ob = _object(f"distractor{i}", _mesh(f"distractor{i}", tm.vertices, tm.faces),
                      surface_material(f"distractor{i}", d.surface), "backdrop")
         ob.matrix_world = d.T_base_obj.T.tolist()
+
+
+def add_board(board: MarkerBoard, px_per_m: float = 4000.0):
+    """The ChArUco board as one object: its printed face (UV-mapped image, white 0.85, black 0.03) and a
+    grey back 2 mm behind it; the caller poses it every frame (`T_base_ee @ board.T_ee_board`)."""
+    printed = board.image(px_per_m)
+    image = bpy.data.images.new("charuco", printed.shape[1], printed.shape[0])
+    grey = 0.03 + 0.82 * np.flipud(printed).astype(np.float32) / 255.0  # Blender stores rows bottom-up
+    image.pixels.foreach_set(_rgba(grey))
+    face, face_bsdf = _principled("board_face")
+    tex = face.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    face.node_tree.links.new(tex.outputs["Color"], face_bsdf.inputs["Base Color"])
+    face_bsdf.inputs["Roughness"].default_value = 0.7
+    back = rgba_material("board_back", (0.3, 0.3, 0.3, 1.0), roughness=0.6)
+
+    w, h = board.size
+    m = board.margin
+    xy = np.array([[-m, -m], [w + m, -m], [w + m, h + m], [-m, h + m]])
+    vertices = np.concatenate([np.c_[xy, np.zeros(4)], np.c_[xy, np.full(4, 0.002)]])
+    faces = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7]])
+    me = _mesh("board", vertices, faces, None)
+    uv = np.c_[(xy[:, 0] + m) / (w + 2 * m), 1.0 - (xy[:, 1] + m) / (h + 2 * m)]
+    loop_uv = np.concatenate([uv, uv])[faces.ravel()]
+    me.uv_layers.new(name="UVMap").data.foreach_set("uv", loop_uv.astype(np.float32).ravel())
+    ob = _object("board", me, face, "board", PASS_BOARD)
+    ob.data.materials.append(back)
+    me.polygons.foreach_set("material_index", np.array([0, 0, 1, 1], dtype=np.int32))
+    return ob
+
+
+def _rgba(grey: np.ndarray) -> np.ndarray:
+    out = np.ones((*grey.shape, 4), np.float32)
+    out[..., :3] = grey[..., None]
+    return out.ravel()
 
 
 def render(workdir: Path | None = None) -> dict[str, np.ndarray]:

@@ -21,7 +21,8 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
     """Render the frames not yet on disk; returns how many were rendered."""
     writer = SceneWriter(Path(scene_dir), SceneMeta(
         obj_id=robot.ee.obj_id, arm=robot.arm.name, end_effector=robot.ee.name,
-        joint_names=list(robot.arm.joints), T_cam_base=inv_T(spec.T_base_cam)))
+        joint_names=list(robot.arm.joints), T_cam_base=inv_T(spec.T_base_cam),
+        marker=spec.marker.to_json() if spec.marker is not None else None))
     todo = [i for i in range(spec.n_frames) if not writer.done(i)]
     if not todo:
         return 0
@@ -32,11 +33,14 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
     bscene.add_planes(spec.planes)
     bscene.add_distractors(spec.distractors)
     objects = bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
+    board = bscene.add_board(spec.marker) if spec.marker is not None else None
     T_cam_base = inv_T(spec.T_base_cam)
     for i in todo:
         q = spec.q[i]
         T_base_link = robot.T_base_link(q)
         objects.pose(T_base_link)
+        if board is not None:
+            board.matrix_world = (T_base_link[robot.ee_root] @ spec.marker.T_ee_board).T.tolist()
         out = bscene.render(Path(scene_dir))
         depth = np.where(out["depth"] < MAX_DEPTH, out["depth"], 0.0)
         writer.write(Frame(

@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from syneepose.scene.marker import MarkerBoard
+
 SURFACE_KINDS = ("plain", "noise", "voronoi", "wave", "brick", "checker")
 
 
@@ -64,6 +66,7 @@ class SegmentSpec:
     lights: list[Light] = field(default_factory=list)
     planes: list[Plane] = field(default_factory=list)
     distractors: list[Distractor] = field(default_factory=list)
+    marker: MarkerBoard | None = None  # a ChArUco board bolted to the end-effector (marker hand-eye segments)
 
     @property
     def n_frames(self) -> int:

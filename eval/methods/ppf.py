@@ -1,0 +1,41 @@
+"""`ppf`: point-pair-feature voting + ICP on each frame's masked depth (no temporal prior; eval/ppf.py).
+
+The pose is the model-frame pose in the camera; the end-effector model comes from `<dataset>/models/`.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from eval.methods import register
+from eval.methods.base import Estimate, Observation
+from eval.ppf import PpfDetector, PpfOptions, scene_cloud
+from feepe.icp import SurfaceModel
+from syneepose.bop import SceneMeta
+
+
+@register("ppf")
+class Ppf:
+    def __init__(self):
+        self.opts = PpfOptions()
+        self._detectors: dict[int, PpfDetector] = {}
+        self._current: PpfDetector | None = None
+
+    def options(self) -> dict:
+        return {"ppf": vars(self.opts)}
+
+    def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
+        if meta.obj_id not in self._detectors:
+            ply = Path(scene_dir).parents[1] / "models" / f"obj_{meta.obj_id:06d}.ply"
+            self._detectors[meta.obj_id] = PpfDetector(SurfaceModel.from_ply(ply), self.opts)
+        self._current = self._detectors[meta.obj_id]
+
+    def estimate(self, obs: Observation) -> Estimate:
+        start = time.perf_counter()
+        found = self._current.detect(*scene_cloud(obs.depth, obs.mask, obs.K, self.opts.max_scene_points))
+        elapsed = time.perf_counter() - start
+        if found is None:
+            return Estimate(T_cam_ee=None, score=0.0, time_s=elapsed)
+        T, explained = found
+        return Estimate(T_cam_ee=T, score=explained, time_s=elapsed)

@@ -1,0 +1,179 @@
+"""`python -m eval.targeting`: the paper's high-precision targeting experiment, in simulation.
+
+Each configuration is rendered twice with the same robot motion, camera and lights: with a ChArUco board
+bolted to the end-effector (`render --marker`) and without (`render`). For every number of views N
+(3, 5, 10, 15, 20) and each of `--draws` random draws of N of the segment's frames, the marker method
+calibrates from the board poses of those frames (`cv2.calibrateHandEye`, Tsai by default, as the
+paper's baseline) and FEEPE runs online over the same frames of the marker-free twin, in frame order;
+both camera-to-base poses are scored at 5 fixed workspace points (mean distance, mm) and in rotation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from eval.cli import run_command
+from eval.handeye import BoardDetector, calibrate
+from eval.methods.feepe import find_template_set
+from eval.metrics import calibration_error
+from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
+from feepe.backbones import get_backbone
+from feepe.estimator import Estimator, FeepeOptions
+from feepe.icp import SurfaceModel
+from feepe.onboarding import onboard
+from syneepose.bop import read_frame, read_scene, write_atomic
+from syneepose.errors import UserError
+from syneepose.scene.marker import MarkerBoard
+
+# Targets on a 0.4 m square at table height in front of the robot, and its centre (base frame, metres).
+WORKSPACE_POINTS = np.array([[0.5, 0.0, 0.05], [0.3, 0.2, 0.05], [0.3, -0.2, 0.05], [0.7, 0.2, 0.05],
+                             [0.7, -0.2, 0.05]])
+VIEWS = (3, 5, 10, 15, 20)
+FIELDS = ("method", "scene_id", "config", "views", "draw", "points_mm", "rot_deg", "detected")
+
+
+@dataclass
+class Trial:
+    method: str
+    scene_id: int
+    config: str
+    views: int
+    draw: int
+    points_mm: float  # mean over the workspace points; inf when the method gave no calibration
+    rot_deg: float
+    detected: int  # frames the method could use (board found / FEEPE candidates)
+
+
+def _pairs(marker_root: Path, plain_root: Path) -> list[tuple[Path, Path]]:
+    marker = {p.name: p for p in (marker_root / "train").iterdir() if p.is_dir()} if (marker_root / "train").is_dir() else {}
+    plain = {p.name: p for p in (plain_root / "train").iterdir() if p.is_dir()} if (plain_root / "train").is_dir() else {}
+    common = sorted(set(marker) & set(plain))
+    if not common:
+        raise UserError(f"no scene is in both {marker_root}/train and {plain_root}/train; render the same "
+                        "--preset/--seed/--robots twice, once with --marker")
+    for name in common:
+        m_meta, m_ids = read_scene(marker[name])
+        p_meta, p_ids = read_scene(plain[name])
+        if m_meta.marker is None:
+            raise UserError(f"{marker[name]}: no marker board; render it with --marker")
+        if not np.allclose(m_meta.T_cam_base, p_meta.T_cam_base, atol=1e-9) or m_ids != p_ids:
+            raise UserError(f"scene {name}: the marker and plain renders differ (camera or frames); render both "
+                            "with the same preset, seed, robots and frame count")
+    return [(marker[n], plain[n]) for n in common]
+
+
+def _error(T_est: np.ndarray | None, T_gt: np.ndarray) -> tuple[float, float]:
+    if T_est is None:
+        return np.inf, np.inf
+    err = calibration_error(T_est, T_gt, WORKSPACE_POINTS)
+    return float(err.points_mm.mean()), float(err.rot_deg[0])
+
+
+def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: int = 0, hand_eye: str = "tsai",
+        variant: str = "D", icp: bool = False, backbone: str = DEFAULT_BACKBONE,
+        templates_dir: Path | None = None) -> list[Trial]:
+    pairs = _pairs(Path(marker_root), Path(plain_root))
+    net = get_backbone(backbone)
+    feepe_name = f"FEEPE {variant}" + (" + depth ICP" if icp else "")
+    trials, rng = [], np.random.default_rng(seed)
+    bar = tqdm(total=len(pairs) * len(views) * draws, unit="trial", desc="targeting")
+    for marker_dir, plain_dir in pairs:
+        meta, ids = read_scene(marker_dir)
+        config, scene_id = f"{meta.arm}+{meta.end_effector}", int(marker_dir.name)
+        detector = BoardDetector(MarkerBoard.from_json(meta.marker))
+        boards = {}
+        for i in ids:
+            f = read_frame(marker_dir, i)
+            boards[i] = (f.T_base_ee, detector.T_cam_board(f.rgb, f.K)[0])
+        plain = {i: read_frame(plain_dir, i) for i in ids}
+        root = Path(templates_dir) if templates_dir else plain_root / "templates"
+        bank = onboard(find_template_set(root, meta.end_effector, None), net)
+        model = SurfaceModel.from_ply(plain_root / "models" / f"obj_{meta.obj_id:06d}.ply") if icp else None
+        for n in views:
+            if n > len(ids):
+                raise UserError(f"{marker_dir}: {len(ids)} frames, fewer than --views {n}")
+            for draw in range(draws):
+                chosen = sorted(rng.choice(ids, n, replace=False).tolist())
+                seen = [boards[i] for i in chosen if boards[i][1] is not None]
+                T_marker = calibrate([b[0] for b in seen], [b[1] for b in seen], hand_eye) if len(seen) >= 3 else None
+                trials.append(Trial("marker hand-eye", scene_id, config, n, draw, *_error(T_marker, meta.T_cam_base),
+                                    len(seen)))
+                est = Estimator(bank, net, FeepeOptions(variant=variant, icp=icp), model)
+                results = [est.step(plain[i].rgb, plain[i].depth, plain[i].mask_visib, plain[i].K,
+                                    plain[i].T_base_ee) for i in chosen]
+                trials.append(Trial(feepe_name, scene_id, config, n, draw,
+                                    *_error(results[-1].T_cam_base, meta.T_cam_base),
+                                    sum(r.n_candidates > 0 for r in results)))
+                bar.update()
+    bar.close()
+    return trials
+
+
+def summarise(trials: list[Trial]) -> dict:
+    """Per method and number of views: median and mean over scenes x draws (failures count as inf)."""
+    out: dict = {}
+    for t in trials:
+        out.setdefault(t.method, {}).setdefault(str(t.views), []).append((t.points_mm, t.rot_deg))
+    return {m: {v: {"points_mm_median": float(np.median([e[0] for e in errs])),
+                    "points_mm_mean": float(np.mean([e[0] for e in errs])),
+                    "rot_deg_median": float(np.median([e[1] for e in errs])),
+                    "failures": int(sum(not np.isfinite(e[0]) for e in errs)), "trials": len(errs)}
+                for v, errs in per.items()} for m, per in out.items()}
+
+
+def write(out: Path, trials: list[Trial], options: dict) -> dict:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(FIELDS)
+    writer.writerows([[getattr(t, f) for f in FIELDS] for t in trials])
+    write_atomic(out / "targeting.csv", text.getvalue().encode())
+    summary = {"options": options, "workspace_points_m": WORKSPACE_POINTS.tolist(), "by_method": summarise(trials)}
+    write_atomic(out / "targeting.json", json.dumps(summary, indent=2).encode())
+    return summary
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m eval.targeting", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--marker", required=True, type=Path, help="data set rendered with --marker")
+    parser.add_argument("--plain", required=True, type=Path, help="the same scenes rendered without the board")
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--views", default=",".join(map(str, VIEWS)), help="numbers of views, e.g. 3,5,10,15,20")
+    parser.add_argument("--draws", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--hand-eye", default="tsai", help="tsai, park, horaud, andreff or daniilidis")
+    parser.add_argument("--variant", default="D", choices=["A", "B", "C", "D"])
+    parser.add_argument("--icp", action="store_true", help="FEEPE with depth alignment (our extension)")
+    parser.add_argument("--backbone", default=DEFAULT_BACKBONE)
+    parser.add_argument("--templates-dir", type=Path, help="FEEPE templates (default: PLAIN/templates)")
+    args = parser.parse_args(argv)
+
+    def action() -> str:
+        try:
+            views = tuple(int(v) for v in args.views.split(","))
+        except ValueError:
+            raise UserError(f"--views {args.views!r} must be comma-separated integers") from None
+        trials = run(args.marker, args.plain, views, args.draws, args.seed, args.hand_eye, args.variant, args.icp,
+                     args.backbone, args.templates_dir)
+        options = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
+        summary = write(args.out, trials, options)
+        lines = [f"{m} {v} views: {s['points_mm_median']:.2f} mm, {s['rot_deg_median']:.3f} deg"
+                 for m, per in summary["by_method"].items() for v, s in per.items()]
+        return "targeting (median over scenes x draws):\n" + "\n".join(lines) + f"\n{args.out}/targeting.json"
+
+    return run_command(action)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,85 @@
+"""Marker segments, the `handeye` method and the targeting experiment on a small rendered twin pair."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+
+from eval.handeye import BoardDetector
+from syneepose.bop import read_frame, read_scene
+from syneepose.scene.marker import MarkerBoard
+from syneepose.transforms import rotation_angle
+
+CONFIG = "ur5e+robotiq_2f85"
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module")
+def twins(tmp_path_factory, assets):
+    """The same 3-frame segment rendered with and without the board (480x360, camera 0.45-0.55 m away)."""
+    root = tmp_path_factory.mktemp("twins")
+    preset = yaml.safe_load(open("scenes/targeting.yaml"))
+    preset["camera"]["distance"] = [0.45, 0.55]
+    preset["motion"]["spread"] = 0.3
+    (root / "near.yaml").write_text(yaml.safe_dump(preset))
+    common = ["--preset", str(root / "near.yaml"), "--robots", CONFIG, "--frames", "3", "--resolution", "480x360",
+              "--samples", "4"]
+    for name, extra in (("marker", ["--marker"]), ("plain", [])):
+        proc = _run("syneepose", "render", "--out", str(root / name), *common, *extra)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    proc = _run("syneepose", "templates", "--out", str(root / "plain"), "--ee", "robotiq_2f85", "--views", "12",
+                "--inplane", "4", "--resolution", "96", "--samples", "4")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return root
+
+
+def test_rendered_board_is_detected_at_its_ground_truth_pose(twins):
+    [scene] = sorted((twins / "marker" / "train").iterdir())
+    meta, ids = read_scene(scene)
+    board = MarkerBoard.from_json(meta.marker)
+    detector = BoardDetector(board)
+    errors = []
+    for i in ids:
+        f = read_frame(scene, i)
+        T, n = detector.T_cam_board(f.rgb, f.K)
+        if T is not None:
+            gt = meta.T_cam_base @ f.T_base_ee @ board.T_ee_board
+            errors.append((np.linalg.norm(T[:3, 3] - gt[:3, 3]), rotation_angle(T[:3, :3], gt[:3, :3])))
+    assert errors, f"board found in none of {len(ids)} frames"
+    assert max(e[0] for e in errors) <= 0.002 and np.rad2deg(max(e[1] for e in errors)) < 1.0
+    # the board is not part of the end-effector's masks
+    plain_meta, _ = read_scene(twins / "plain" / "train" / scene.name)
+    np.testing.assert_allclose(plain_meta.T_cam_base, meta.T_cam_base)
+    assert plain_meta.marker is None
+
+
+def test_handeye_method_and_targeting_table(twins, tmp_path):
+    proc = _run("eval.run", "--method", "handeye", "--dataset", str(twins / "marker"), "--out", str(tmp_path / "he"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads((tmp_path / "he" / "summary.json").read_text())
+    assert summary["options"] == {"hand_eye": "tsai"} and summary["n_frames"] == 3
+    proc = _run("eval.targeting", "--marker", str(twins / "marker"), "--plain", str(twins / "plain"), "--views", "2,3",
+                "--draws", "2", "--out", str(tmp_path / "aim"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads((tmp_path / "aim" / "targeting.json").read_text())["by_method"]
+    assert set(result) == {"marker hand-eye", "FEEPE D"} and result["FEEPE D"]["3"]["trials"] == 2
+    assert result["marker hand-eye"]["2"]["failures"] == 2  # hand-eye needs 3 views
+    proc = _run("eval.tables", str(tmp_path / "he"), str(tmp_path / "aim"), "--out", str(tmp_path / "tables"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    table = (tmp_path / "tables" / "targeting.md").read_text()
+    assert "marker hand-eye" in table and "| 2 views | 3 views |" in table
+    assert (tmp_path / "tables" / "targeting.png").stat().st_size > 10_000
+
+
+def test_targeting_refuses_scenes_that_are_not_twins(twins, tmp_path):
+    proc = _run("eval.targeting", "--marker", str(twins / "plain"), "--plain", str(twins / "plain"), "--out",
+                str(tmp_path / "x"))
+    assert proc.returncode == 2 and "no marker board" in proc.stderr and "Traceback" not in proc.stderr
+    proc = _run("eval.run", "--method", "handeye", "--dataset", str(twins / "plain"), "--out", str(tmp_path / "y"))
+    assert proc.returncode == 2 and "render --marker" in proc.stderr and "Traceback" not in proc.stderr
