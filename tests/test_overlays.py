@@ -1,0 +1,49 @@
+"""Pose overlays on the tiny rendered set: the model projected at the ground-truth pose outlines the rendered
+mask (mean contour distance <= 1 px), and a wrong estimate is drawn where the model would be."""
+
+import cv2
+import numpy as np
+
+from eval.overlays import EST_COLOUR, contour_points, draw_pose, load_mesh, silhouette
+from syneepose.bop import read_frame, read_scene
+from syneepose.show import GT_COLOUR
+from syneepose.transforms import make_T
+
+
+def _frames(root):
+    for scene_dir in sorted((root / "train").iterdir()):
+        meta, im_ids = read_scene(scene_dir)
+        mesh = load_mesh(root / "models" / f"obj_{meta.obj_id:06d}.ply")
+        for im_id in im_ids:
+            yield mesh, read_frame(scene_dir, im_id)
+
+
+def _distance_to_boundary(mask: np.ndarray) -> np.ndarray:
+    """Per pixel, the distance (px) to the nearest boundary pixel of `mask`."""
+    not_boundary = np.ones(mask.shape, np.uint8)
+    xy = contour_points(mask)
+    not_boundary[xy[:, 1], xy[:, 0]] = 0
+    return cv2.distanceTransform(not_boundary, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
+def test_contour_at_ground_truth_pose_lies_on_the_mask_boundary(tiny_dataset):
+    distances = []
+    for mesh, frame in _frames(tiny_dataset):
+        projected = silhouette(mesh, frame.K, frame.T_cam_ee, frame.mask.shape)
+        xy = contour_points(projected)
+        distances.append(_distance_to_boundary(frame.mask)[xy[:, 1], xy[:, 0]].mean())
+        assert (projected & frame.mask).sum() / (projected | frame.mask).sum() > 0.9
+    assert len(distances) == 12 and max(distances) <= 1.0, distances
+
+
+def test_estimate_and_ground_truth_in_their_colours(tiny_dataset):
+    mesh, frame = next(_frames(tiny_dataset))
+    truth_only = draw_pose(frame.rgb, frame.mask, frame.K, mesh, None)
+    assert (truth_only == GT_COLOUR).all(axis=-1).sum() > 20 and not (truth_only == EST_COLOUR).all(axis=-1).any()
+
+    shifted = make_T(t=[0.03, 0.0, 0.0]) @ frame.T_cam_ee  # 3 cm to the camera's right
+    drawn = draw_pose(frame.rgb, frame.mask, frame.K, mesh, shifted)
+    ys, xs = np.nonzero((drawn == EST_COLOUR).all(axis=-1))
+    expected = silhouette(mesh, frame.K, shifted, frame.mask.shape)
+    assert len(xs) > 20 and abs(xs.mean() - np.nonzero(expected)[1].mean()) < 2.0
+    assert xs.mean() > np.nonzero(frame.mask)[1].mean() + 3  # drawn right of the ground truth
