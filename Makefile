@@ -36,8 +36,11 @@ tables: dataset
 	for k in 1 3 10; do $(RUN) --k-r $$k --out $(RESULTS)/feepe-kr$$k; done
 	for k in 2 4 16; do $(RUN) --k-f $$k --out $(RESULTS)/feepe-kf$$k; done
 	$(PY) -m eval.tables $(RESULTS)/feepe-* --out $(RESULTS)/tables
+	$(PY) -m eval.report $(RESULTS)/feepe-* --out $(RESULTS)/report
 
+# The report test opens a page in headless Chromium (CI runs as root on Debian).
 test: assets
+	command -v chromium >/dev/null || (apt-get update && apt-get install -y --no-install-recommends chromium)
 	$(PY) -m pytest -x -q
 
 bench: dataset
