@@ -112,9 +112,9 @@ def zoom(rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, size: int,
     scale = size / side
     x0, y0 = (xs.min() + xs.max() - side) / 2, (ys.min() + ys.max() - side) / 2
     warp = np.array([[scale, 0, -scale * x0], [0, scale, -scale * y0], [0, 0, 1]])
-    view = [cv2.warpAffine(image, warp[:2], (size, size), flags=cv2.INTER_LINEAR, borderValue=BACKGROUND)
-            for image in (rgb, mask.astype(np.float32))]
-    return view[0], view[1] > 0.5, warp @ K
+    rgb = cv2.warpAffine(rgb, warp[:2], (size, size), flags=cv2.INTER_LINEAR, borderValue=BACKGROUND)
+    mask = cv2.warpAffine(mask.astype(np.float32), warp[:2], (size, size), flags=cv2.INTER_LINEAR, borderValue=0)
+    return rgb, mask > 0.5, warp @ K
 
 
 def describe(row: FrameErrors) -> str:

@@ -1,10 +1,11 @@
 """Pose overlays on the tiny rendered set: the model projected at the ground-truth pose outlines the rendered
-mask (mean contour distance <= 1 px), and a wrong estimate is drawn where the model would be."""
+mask (mean contour distance <= 1 px), a wrong estimate is drawn where the model would be, and the zoomed view
+keeps the geometry."""
 
 import cv2
 import numpy as np
 
-from eval.overlays import EST_COLOUR, contour_points, draw_pose, load_mesh, silhouette
+from eval.overlays import EST_COLOUR, contour_points, draw_pose, load_mesh, silhouette, zoom
 from syneepose.bop import read_frame, read_scene
 from syneepose.show import GT_COLOUR
 from syneepose.transforms import make_T
@@ -47,3 +48,15 @@ def test_estimate_and_ground_truth_in_their_colours(tiny_dataset):
     expected = silhouette(mesh, frame.K, shifted, frame.mask.shape)
     assert len(xs) > 20 and abs(xs.mean() - np.nonzero(expected)[1].mean()) < 2.0
     assert xs.mean() > np.nonzero(frame.mask)[1].mean() + 3  # drawn right of the ground truth
+
+
+def test_zoomed_view_keeps_the_pose_and_nothing_beyond_the_image(tiny_dataset):
+    mesh, frame = next(_frames(tiny_dataset))
+    rgb, mask, K = zoom(frame.rgb, frame.mask, frame.K, 240)
+    projected = silhouette(mesh, K, frame.T_cam_ee, mask.shape)
+    assert rgb.shape == (240, 240, 3) and (projected & mask).sum() / (projected | mask).sum() > 0.9
+
+    corner = np.zeros_like(frame.mask)
+    corner[:10, :10] = True  # the view spans x, y in -9.9..18.9: the part left of and above the image is empty
+    _, zoomed, _ = zoom(frame.rgb, corner, frame.K, 100)
+    assert zoomed.sum() > 800 and not zoomed[:30].any() and not zoomed[:, :30].any()
