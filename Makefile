@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup assets dataset tables test bench clean-assets
+.PHONY: setup assets dataset tables targeting test bench clean-assets
 
 setup: $(STAMP)
 
@@ -35,8 +35,21 @@ tables: dataset
 	$(RUN) --icp --out $(RESULTS)/feepe-D-icp
 	for k in 1 3 10; do $(RUN) --k-r $$k --out $(RESULTS)/feepe-kr$$k; done
 	for k in 2 4 16; do $(RUN) --k-f $$k --out $(RESULTS)/feepe-kf$$k; done
-	$(PY) -m eval.tables $(RESULTS)/feepe-* --out $(RESULTS)/tables
-	$(PY) -m eval.report $(RESULTS)/feepe-* --out $(RESULTS)/report
+	$(PY) -m eval.run --method ppf --dataset $(DATA) --out $(RESULTS)/ppf
+	$(PY) -m eval.tables $(RESULTS)/feepe-* $(RESULTS)/ppf --out $(RESULTS)/tables
+	$(PY) -m eval.report $(RESULTS)/feepe-* $(RESULTS)/ppf --out $(RESULTS)/report
+
+# The targeting experiment: the same segments rendered with and without a ChArUco board on the flange,
+# marker hand-eye against FEEPE (with the mini templates) at 3-20 views; table and plot in results/targeting.
+AIM_ROBOTS ?= panda+panda_hand,ur5e+robotiq_2f85,panda+robotiq_3f
+AIM := $(PY) -m eval.targeting --marker data/targeting-marker --plain data/targeting-plain --templates-dir $(DATA)/templates
+
+targeting: dataset
+	$(PY) -m syneepose render --preset targeting --robots $(AIM_ROBOTS) --marker --out data/targeting-marker
+	$(PY) -m syneepose render --preset targeting --robots $(AIM_ROBOTS) --out data/targeting-plain
+	$(AIM) --out results/targeting/feepe-D
+	$(AIM) --icp --out results/targeting/feepe-D-icp
+	$(PY) -m eval.tables results/targeting/feepe-D results/targeting/feepe-D-icp --out results/targeting/tables
 
 # The report test opens a page in headless Chromium (CI runs as root on Debian).
 test: assets

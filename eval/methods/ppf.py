@@ -23,7 +23,7 @@ class Ppf:
         self._current: PpfDetector | None = None
 
     def options(self) -> dict:
-        return {"ppf": vars(self.opts)}
+        return {"name": "PPF + ICP", "ppf": vars(self.opts)}
 
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
         if meta.obj_id not in self._detectors:
