@@ -51,12 +51,16 @@ def _render(args) -> None:
         backgrounds = tuple(sorted(str(p) for p in folder.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg")))
         if not backgrounds:
             raise UserError(f"--backgrounds {folder}: no .png/.jpg images found")
+    if args.depth != "exact":
+        from syneepose.stereo import load_profile
+
+        load_profile(args.sensor)  # a bad profile is one error line here, not one per worker
     assets = paths.assets_dir()
     build_assets(assets, configs, log=lambda *_: None)
     jobs = J.make_jobs(args.preset, preset, out, configs, args.seed,
                        args.segments or int(preset["segments"]), args.frames or int(preset["frames"]),
                        width, height, args.samples or int(preset["samples"]), assets, backgrounds,
-                       J.parse_shard(args.shard), args.device, args.marker)
+                       J.parse_shard(args.shard), args.device, args.marker, args.depth, args.sensor)
     J.write_dataset_info(out, args.preset, jobs, configs, assets)
     done_before = {j: J.frames_done(j) for j in jobs}
     todo = [j for j in jobs if done_before[j] < j.frames]
@@ -158,6 +162,10 @@ def main(argv=None) -> int:
     r.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
     r.add_argument("--marker", action="store_true",
                    help="bolt a ChArUco board to the end-effector (marker hand-eye segments; same scenes otherwise)")
+    r.add_argument("--depth", choices=["exact", "stereo", "both"], default="exact",
+                   help="stereo: depth/ from a simulated active-stereo sensor, exact depth in depth_gt/; "
+                        "both: also keep its IR pair (ir_left/, ir_right/)")
+    r.add_argument("--sensor", default="d435", help="sensor profile for --depth stereo|both (scenes/sensors/ or YAML)")
     r.add_argument("--executor", choices=["local", "ray"], default="local")
     r.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     r.add_argument("--workers", type=int, default=1, help="local worker processes (Cycles uses all cores)")

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -31,6 +31,9 @@ class Frame:
     T_cam_ee: np.ndarray  # (4, 4) metres
     joint_positions: np.ndarray  # (n,)
     T_base_ee: np.ndarray  # (4, 4) metres
+    depth_gt: np.ndarray | None = None  # exact depth when `depth` is a simulated sensor's (metres)
+    ir_left: np.ndarray | None = None  # (h, w) uint8 IR pair of the stereo sensor (--depth both)
+    ir_right: np.ndarray | None = None
 
 
 @dataclass
@@ -42,12 +45,20 @@ class SceneMeta:
     T_cam_base: np.ndarray  # (4, 4) metres, static in a segment; the BOP world frame is the robot base
     depth_scale: float = 0.1  # mm per depth PNG unit
     marker: dict | None = None  # MarkerBoard.to_json() when a ChArUco board rides on the end-effector
+    depth_sensor: dict | None = None  # {"mode": "stereo" | "both", "profile": {...}}; None: exact depth
 
 
-def _image_paths(scene_dir: Path, im_id: int) -> dict[str, Path]:
+EXTRAS = {"stereo": ("depth_gt",), "both": ("depth_gt", "ir_left", "ir_right")}
+
+
+def _image_paths(scene_dir: Path, im_id: int, depth_sensor: dict | None = None) -> dict[str, Path]:
+    """The files of one frame; a simulated depth sensor adds the exact depth (and the IR pair)."""
     mask_name = f"{im_id:06d}_{GT_ID:06d}.png"
-    return {"rgb": scene_dir / "rgb" / f"{im_id:06d}.png", "depth": scene_dir / "depth" / f"{im_id:06d}.png",
-            "mask": scene_dir / "mask" / mask_name, "mask_visib": scene_dir / "mask_visib" / mask_name}
+    paths = {"rgb": scene_dir / "rgb" / f"{im_id:06d}.png", "depth": scene_dir / "depth" / f"{im_id:06d}.png",
+             "mask": scene_dir / "mask" / mask_name, "mask_visib": scene_dir / "mask_visib" / mask_name}
+    for extra in EXTRAS.get((depth_sensor or {}).get("mode"), ()):
+        paths[extra] = scene_dir / extra / f"{im_id:06d}.png"
+    return paths
 
 
 def write_atomic(path: Path, data: bytes) -> None:
@@ -79,9 +90,9 @@ def _load_records(scene_dir: Path) -> dict[str, dict]:
 
 
 def _complete(scene_dir: Path, records: dict[str, dict], im_id: int) -> bool:
-    key = str(im_id)
+    key, sensor = str(im_id), records["scene_robot"].get("depth_sensor")
     return (all(key in records[name] for name in _JSONS[:3]) and key in records["scene_robot"].get("frames", {})
-            and all(p.exists() for p in _image_paths(scene_dir, im_id).values()))
+            and all(p.exists() for p in _image_paths(scene_dir, im_id, sensor).values()))
 
 
 def _bbox(mask: np.ndarray) -> list[int]:
@@ -130,25 +141,45 @@ class SceneWriter:
         if robot and (robot["arm"], robot["end_effector"]) != (meta.arm, meta.end_effector):
             raise UserError(f"{self.scene_dir} holds {robot['config']} frames, not "
                             f"{meta.arm}+{meta.end_effector}; write to another folder (a scene never mixes robots)")
+        before = (robot.get("depth_sensor") or {}).get("mode", "exact") if robot.get("frames") else None
+        after = (meta.depth_sensor or {}).get("mode", "exact")
+        if before is not None and before != after:
+            raise UserError(f"{self.scene_dir} holds frames with {before} depth, not {after}; write to another "
+                            "folder (a scene never mixes depth kinds)")
         self._records["scene_robot"] = {
             "arm": meta.arm, "end_effector": meta.end_effector, "config": f"{meta.arm}+{meta.end_effector}",
             "joint_names": list(meta.joint_names), "T_cam_base": np.asarray(meta.T_cam_base, dtype=float).tolist(),
             "frames": robot.get("frames", {})}
         if meta.marker is not None:
             self._records["scene_robot"]["marker"] = meta.marker
-        for sub in ("rgb", "depth", "mask", "mask_visib"):
-            (self.scene_dir / sub).mkdir(parents=True, exist_ok=True)
+        if meta.depth_sensor is not None:
+            self._records["scene_robot"]["depth_sensor"] = meta.depth_sensor
+        for path in _image_paths(self.scene_dir, 0, meta.depth_sensor).values():
+            path.parent.mkdir(parents=True, exist_ok=True)
 
     def done(self, im_id: int) -> bool:
         return _complete(self.scene_dir, self._records, im_id)
+
+    def _extras(self, frame: Frame, depth_png: np.ndarray) -> dict[str, np.ndarray]:
+        """The PNGs of a simulated sensor's frame: exact depth (same scale as depth/) and the IR pair."""
+        names = EXTRAS.get((self.meta.depth_sensor or {}).get("mode"), ())
+        missing = [n for n in names if getattr(frame, n) is None]
+        if missing:
+            raise UserError(f"frame {frame.im_id}: a {self.meta.depth_sensor['mode']} depth scene needs {missing}")
+        out = {n: np.asarray(getattr(frame, n), dtype=np.uint8) for n in names if n.startswith("ir_")}
+        if "depth_gt" in names:
+            out["depth_gt"] = _depth_png(replace(frame, depth=frame.depth_gt), self.meta.depth_scale)
+        return out
 
     def write(self, frame: Frame) -> None:
         """Images first, then every JSON, so a JSON record only ever names whole images."""
         meta, key = self.meta, str(frame.im_id)
         depth_png = _depth_png(frame, meta.depth_scale)
-        paths = _image_paths(self.scene_dir, frame.im_id)
+        paths = _image_paths(self.scene_dir, frame.im_id, meta.depth_sensor)
         write_png(paths["rgb"], cv2.cvtColor(np.ascontiguousarray(frame.rgb), cv2.COLOR_RGB2BGR))
         write_png(paths["depth"], depth_png)
+        for name, image in self._extras(frame, depth_png).items():
+            write_png(paths[name], image)
         for name in ("mask", "mask_visib"):
             write_png(paths[name], np.asarray(getattr(frame, name), dtype=bool).astype(np.uint8) * 255)
 
@@ -180,7 +211,8 @@ def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
     meta = SceneMeta(obj_id=records["scene_gt"][first][GT_ID]["obj_id"], arm=robot["arm"],
                      end_effector=robot["end_effector"], joint_names=list(robot["joint_names"]),
                      T_cam_base=np.array(robot["T_cam_base"], dtype=float),
-                     depth_scale=records["scene_camera"][first]["depth_scale"], marker=robot.get("marker"))
+                     depth_scale=records["scene_camera"][first]["depth_scale"], marker=robot.get("marker"),
+                     depth_sensor=robot.get("depth_sensor"))
     return meta, im_ids
 
 
@@ -190,13 +222,16 @@ def read_frame(scene_dir: Path, im_id: int) -> Frame:
     records = _load_records(scene_dir)
     if not _complete(scene_dir, records, im_id):
         raise UserError(f"{scene_dir}: no complete frame {im_id}; `read_scene` lists the frames present")
-    key, paths = str(im_id), _image_paths(scene_dir, im_id)
+    key, paths = str(im_id), _image_paths(scene_dir, im_id, records["scene_robot"].get("depth_sensor"))
     camera, gt = records["scene_camera"][key], records["scene_gt"][key][GT_ID]
     robot = records["scene_robot"]["frames"][key]
+    extras = {n: read_png(paths[n]) for n in ("ir_left", "ir_right") if n in paths}
+    if "depth_gt" in paths:
+        extras["depth_gt"] = read_png(paths["depth_gt"]) * (camera["depth_scale"] / 1000.0)
     return Frame(im_id=im_id, rgb=cv2.cvtColor(read_png(paths["rgb"]), cv2.COLOR_BGR2RGB),
                  depth=read_png(paths["depth"]) * (camera["depth_scale"] / 1000.0),
                  mask=read_png(paths["mask"]) > 127, mask_visib=read_png(paths["mask_visib"]) > 127,
                  K=np.array(camera["cam_K"], dtype=float).reshape(3, 3),
                  T_cam_ee=make_T(np.reshape(gt["cam_R_m2c"], (3, 3)), np.array(gt["cam_t_m2c"]) / 1000.0),
                  joint_positions=np.array(robot["joint_positions"], dtype=float),
-                 T_base_ee=np.array(robot["T_base_ee"], dtype=float))
+                 T_base_ee=np.array(robot["T_base_ee"], dtype=float), **extras)

@@ -66,6 +66,8 @@ class Job:
     backgrounds: tuple[str, ...] = ()
     device: str = "cpu"
     marker: bool = False
+    depth: str = "exact"  # exact | stereo | both
+    sensor: str = "d435"  # a profile in scenes/sensors/ or a YAML path
 
     @property
     def scene_dir(self) -> Path:
@@ -87,14 +89,14 @@ def parse_shard(text: str | None) -> tuple[int, int]:
 def make_jobs(preset_name: str, preset: dict, out: Path, configs: list[str], seed: int, segments: int,
               frames: int, width: int, height: int, samples: int, assets: Path,
               backgrounds: tuple[str, ...] = (), shard: tuple[int, int] = (0, 1), device: str = "cpu",
-              marker: bool = False) -> list[Job]:
+              marker: bool = False, depth: str = "exact", sensor: str = "d435") -> list[Job]:
     all_configs = load_catalog().configurations
     jobs = []
     for config in configs:
         for segment in range(segments):
             scene_id = all_configs.index(config) * segments + segment
             jobs.append(Job(config, scene_id, segment, seed, frames, width, height, samples, str(out), preset_name,
-                            str(assets), backgrounds, device, marker))
+                            str(assets), backgrounds, device, marker, depth, sensor))
     i, n = shard
     return jobs[i::n]
 
@@ -122,6 +124,10 @@ def run_job(job: Job) -> int:
     spec.device = job.device
     if job.marker:
         spec.marker = _mounted_board(preset, robot, mesh, spec)
+    if job.depth != "exact":
+        from syneepose.stereo import load_profile
+
+        spec.depth_mode, spec.sensor = job.depth, load_profile(job.sensor)
     with _quiet_stdout():
         return render_segment(spec, robot, job.scene_dir)
 
@@ -198,13 +204,22 @@ def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: li
     if info_path.is_file():
         info = json.loads(info_path.read_text())
     first = asdict(jobs[0]) if jobs else {}
+    if info.get("depth", "exact") != first.get("depth", "exact") and info.get("configurations"):
+        raise UserError(f"{out} was rendered with --depth {info.get('depth', 'exact')}, not "
+                        f"{first.get('depth', 'exact')}; render into another folder (a data set never mixes depth kinds)")
     info.update({
         "preset": preset_name, "seed": first.get("seed"), "frames_per_segment": first.get("frames"),
         "resolution": [first.get("width"), first.get("height")], "samples": first.get("samples"),
         "configurations": sorted(set(info.get("configurations", [])) | set(configs)),
-        "split": SPLIT, "depth_scale": 0.1,
+        "split": SPLIT, "depth_scale": 0.1, "depth": first.get("depth", "exact"),
+        "depth_dirs": {"depth": "exact" if first.get("depth", "exact") == "exact" else "stereo sensor",
+                       **({"depth_gt": "exact"} if first.get("depth", "exact") != "exact" else {})},
         "versions": {"syneepose": __version__, "bpy": version("bpy")},
     })
+    if info["depth"] != "exact":
+        from syneepose.stereo import load_profile
+
+        info["sensor"] = load_profile(first["sensor"]).source
     tmp = info_path.with_name(f".{info_path.name}.tmp{os.getpid()}")
     tmp.write_text(json.dumps(info, indent=2, sort_keys=True))
     os.replace(tmp, info_path)

@@ -2,19 +2,33 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from syneepose.blender import scene as bscene
+from syneepose.blender.stereo import IrRig
 from syneepose.blender.exr import linear_to_srgb8
 from syneepose.bop import Frame, SceneMeta, SceneWriter
 from syneepose.robots.robot import Robot
 from syneepose.scene.spec import SegmentSpec
+from syneepose.stereo import stereo_depth, to_rgb_camera
 from syneepose.transforms import inv_T
 
 MAX_DEPTH = 65535 * 0.1 / 1000.0  # metres: the uint16 depth PNG range at depth_scale 0.1; beyond -> 0,
 # as a real sensor reports out-of-range depth (Cycles writes 1e10 where a ray hits nothing)
+
+
+def _with_sensor_depth(frame: Frame, rig: IrRig, spec: SegmentSpec, workdir: Path) -> Frame:
+    """The frame with the stereo sensor's depth in `depth` and the exact depth kept as `depth_gt`."""
+    left, right = rig.render_pair(spec.T_base_cam, workdir)
+    depth_ir = stereo_depth(left, right, spec.sensor, rig.K_ir)
+    sensed = to_rgb_camera(depth_ir, rig.K_ir, spec.sensor.T_rgb_irleft, spec.K, spec.width, spec.height)
+    sensed = np.where(sensed < MAX_DEPTH, sensed, 0.0)
+    keep_ir = spec.depth_mode == "both"
+    return replace(frame, depth=sensed, depth_gt=frame.depth, ir_left=left if keep_ir else None,
+                   ir_right=right if keep_ir else None)
 
 
 def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=None) -> int:
@@ -22,7 +36,8 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
     writer = SceneWriter(Path(scene_dir), SceneMeta(
         obj_id=robot.ee.obj_id, arm=robot.arm.name, end_effector=robot.ee.name,
         joint_names=list(robot.arm.joints), T_cam_base=inv_T(spec.T_base_cam),
-        marker=spec.marker.to_json() if spec.marker is not None else None))
+        marker=spec.marker.to_json() if spec.marker is not None else None,
+        depth_sensor={"mode": spec.depth_mode, "profile": spec.sensor.source} if spec.sensor is not None else None))
     todo = [i for i in range(spec.n_frames) if not writer.done(i)]
     if not todo:
         return 0
@@ -34,6 +49,7 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
     bscene.add_distractors(spec.distractors)
     objects = bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
     board = bscene.add_board(spec.marker) if spec.marker is not None else None
+    rig = IrRig(spec.sensor, spec.width, spec.height, seed=spec.scene_id) if spec.sensor is not None else None
     T_cam_base = inv_T(spec.T_base_cam)
     for i in todo:
         q = spec.q[i]
@@ -43,11 +59,14 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
             board.matrix_world = (T_base_link[robot.ee_root] @ spec.marker.T_ee_board).T.tolist()
         out = bscene.render(Path(scene_dir))
         depth = np.where(out["depth"] < MAX_DEPTH, out["depth"], 0.0)
-        writer.write(Frame(
+        frame = Frame(
             im_id=i, rgb=linear_to_srgb8(out["rgb_linear"]), depth=depth,
             mask=out["ee_index"] == bscene.PASS_EE, mask_visib=out["index"] == bscene.PASS_EE,
             K=spec.K, T_cam_ee=T_cam_base @ T_base_link[robot.ee_root], joint_positions=q,
-            T_base_ee=T_base_link[robot.ee_root]))
+            T_base_ee=T_base_link[robot.ee_root])
+        if rig is not None:
+            frame = _with_sensor_depth(frame, rig, spec, Path(scene_dir))
+        writer.write(frame)
         if progress is not None:
             progress(1)
     return len(todo)

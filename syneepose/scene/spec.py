@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from syneepose.scene.marker import MarkerBoard
+from syneepose.stereo import SensorProfile
 
 SURFACE_KINDS = ("plain", "noise", "voronoi", "wave", "brick", "checker")
 
@@ -67,6 +68,8 @@ class SegmentSpec:
     planes: list[Plane] = field(default_factory=list)
     distractors: list[Distractor] = field(default_factory=list)
     marker: MarkerBoard | None = None  # a ChArUco board bolted to the end-effector (marker hand-eye segments)
+    depth_mode: str = "exact"  # "stereo" | "both": simulated active-stereo depth (syneepose/stereo.py)
+    sensor: SensorProfile | None = None
 
     @property
     def n_frames(self) -> int:

@@ -1,0 +1,169 @@
+"""Active-stereo depth like a RealSense D4xx (DREDS-style), the numpy/OpenCV half: the sensor profile,
+the projector's random-dot pattern, semi-global matching on the rendered IR pair, and the depth moved
+into the RGB camera. The IR pair itself is rendered by `syneepose/blender/stereo.py`.
+
+The IR imagers share the RGB camera's orientation and sit on its x axis, so the pair is rectified by
+construction; disparity d gives depth f * baseline / d along the left imager's axis. Depth is then
+re-projected into the RGB camera (each IR pixel splats its footprint, the nearest surface wins), and
+pixels that nothing reaches, or that matching rejected, are 0 - as an aligned RealSense depth image has.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from syneepose.errors import UserError
+from syneepose.transforms import make_T
+
+SENSORS_DIR = Path(__file__).resolve().parents[1] / "scenes" / "sensors"
+DEPTH_MODES = ("exact", "stereo", "both")
+FRONT_TOLERANCE = 0.02  # samples within 2 % of the nearest one belong to the visible surface
+
+
+@dataclass
+class SensorProfile:
+    name: str
+    baseline: float
+    ir_hfov_deg: float
+    ir_scale: float
+    T_rgb_irleft: np.ndarray  # (4, 4)
+    projector: dict
+    ambient: float
+    ir_samples: int
+    matcher: dict
+    depth_range: tuple[float, float]
+    source: dict = field(default_factory=dict)  # the YAML as read, for dataset_info.json
+
+    def ir_size(self, width: int, height: int) -> tuple[int, int]:
+        return int(round(width * self.ir_scale)), int(round(height * self.ir_scale))
+
+    def ir_K(self, width: int, height: int) -> np.ndarray:
+        w, h = self.ir_size(width, height)
+        f = w / 2 / np.tan(np.deg2rad(self.ir_hfov_deg) / 2)
+        return np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]])
+
+    @property
+    def T_irleft_irright(self) -> np.ndarray:
+        return make_T(t=[self.baseline, 0.0, 0.0])
+
+    def expected_error(self, depth: float, width: int, height: int, disparity_noise: float = 0.1) -> float:
+        """1-sigma depth error of a `disparity_noise` px disparity error: z^2 * dd / (f * b)."""
+        return depth**2 * disparity_noise / (self.ir_K(width, height)[0, 0] * self.baseline)
+
+
+def load_profile(name_or_path: str) -> SensorProfile:
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = SENSORS_DIR / f"{name_or_path}.yaml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in SENSORS_DIR.glob("*.yaml")))
+        raise UserError(f"sensor profile {name_or_path!r} not found; known: {known}, or give a YAML path")
+    raw = yaml.safe_load(path.read_text())
+    try:
+        return SensorProfile(name=raw["name"], baseline=float(raw["baseline"]), ir_hfov_deg=float(raw["ir_hfov_deg"]),
+                             ir_scale=float(raw.get("ir_scale", 1.0)), T_rgb_irleft=make_T(t=raw["T_rgb_irleft"]),
+                             projector=dict(raw["projector"]), ambient=float(raw["ambient"]),
+                             ir_samples=int(raw.get("ir_samples", 4)), matcher=dict(raw["matcher"]),
+                             depth_range=tuple(raw["depth_range"]), source=raw)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise UserError(f"sensor profile {path}: missing or bad key {exc}; see scenes/sensors/d435.yaml") from None
+
+
+def dot_pattern(profile: SensorProfile, ir_width: int, seed: int = 0) -> np.ndarray:
+    """A square random-dot image (uint8) for the projector: single-pixel dots at the set density, the
+    pattern pixel about a third of an IR pixel so dots land anywhere within a pixel."""
+    hfov = np.deg2rad(profile.projector["hfov_deg"])
+    ir_pixels = ir_width * np.tan(hfov / 2) / np.tan(np.deg2rad(profile.ir_hfov_deg) / 2)
+    size = int(np.ceil(3 * ir_pixels))
+    rng = np.random.default_rng(seed)
+    n_dots = int(profile.projector["dots_per_ir_pixel"] * ir_pixels**2)
+    image = np.zeros((size, size), np.uint8)
+    image[rng.integers(0, size, n_dots), rng.integers(0, size, n_dots)] = 255
+    return cv2.dilate(image, np.ones((2, 2), np.uint8))
+
+
+def ir_to_gray(linear: np.ndarray) -> np.ndarray:
+    """Rendered linear radiance -> 8-bit IR image (sRGB-encoded luminance, clipped like a sensor)."""
+    lum = linear[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+    srgb = np.where(lum <= 0.0031308, 12.92 * lum, 1.055 * np.power(np.clip(lum, 0, None), 1 / 2.4) - 0.055)
+    return np.round(np.clip(srgb, 0, 1) * 255).astype(np.uint8)
+
+
+def stereo_depth(left: np.ndarray, right: np.ndarray, profile: SensorProfile, K_ir: np.ndarray) -> np.ndarray:
+    """Depth (metres, 0 = none) in the left IR image from a rectified 8-bit pair."""
+    m = profile.matcher
+    f = K_ir[0, 0]
+    z_min, z_max = profile.depth_range
+    max_disp = int(np.ceil(f * profile.baseline / z_min / 16.0)) * 16
+    block = int(m["block"])
+    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=max_disp, blockSize=block,
+                                 P1=8 * block * block, P2=32 * block * block, disp12MaxDiff=int(m["lr_max_diff"]),
+                                 uniquenessRatio=int(m["uniqueness"]), speckleWindowSize=int(m["speckle_window"]),
+                                 speckleRange=int(m["speckle_range"]), mode=cv2.STEREO_SGBM_MODE_HH)
+    disparity = sgbm.compute(left, right).astype(np.float32) / 16.0
+    disparity = refine_disparity(left, right, disparity, int(m.get("refine_window", 11)),
+                                 int(m.get("refine_iterations", 5)))
+    depth = np.where(disparity > 0, f * profile.baseline / np.maximum(disparity, 1e-6), 0.0)
+    return np.where((depth >= z_min) & (depth <= z_max), depth, 0.0)
+
+
+def refine_disparity(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, window: int,
+                     iterations: int) -> np.ndarray:
+    """Sub-pixel disparity by 1-D Lucas-Kanade on the SGBM result (0 = invalid stays 0).
+
+    SGBM's parabola fit locks onto whole pixels: on a rendered plane whose true disparity was 16.86 px it
+    returned 17.00 almost everywhere (measured). Minimising the windowed squared difference between the
+    left image and the bilinearly resampled right image, with the interpolant's own derivative, removes
+    that bias (16.856 on the same plane).
+    """
+    valid = disparity > 0
+    h, w = disparity.shape
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    L, R = left.astype(np.float32), right.astype(np.float32)
+    d = disparity.astype(np.float32)
+    for _ in range(iterations):
+        warped = cv2.remap(R, xs - d, ys, cv2.INTER_LINEAR)
+        slope = cv2.remap(R, xs - d + 0.5, ys, cv2.INTER_LINEAR) - cv2.remap(R, xs - d - 0.5, ys, cv2.INTER_LINEAR)
+        num = cv2.boxFilter((L - warped) * slope, -1, (window, window), normalize=False)
+        den = cv2.boxFilter(slope * slope, -1, (window, window), normalize=False)
+        d = np.where(valid, d + np.clip(-num / np.maximum(den, 1e-6), -0.5, 0.5), 0.0).astype(np.float32)
+    return d
+
+
+def to_rgb_camera(depth_ir: np.ndarray, K_ir: np.ndarray, T_rgb_ir: np.ndarray, K_rgb: np.ndarray,
+                  width: int, height: int) -> np.ndarray:
+    """Re-project IR depth into the RGB image: each valid IR pixel covers its nearest RGB pixel and the
+    RGB pixel centres inside its footprint (the projected pixel square); the nearest surface wins."""
+    v, u = np.nonzero(depth_ir > 0)
+    z = depth_ir[v, u]
+    pts = np.stack([(u - K_ir[0, 2]) / K_ir[0, 0] * z, (v - K_ir[1, 2]) / K_ir[1, 1] * z, z], 1)
+    pts = pts @ T_rgb_ir[:3, :3].T + T_rgb_ir[:3, 3]
+    zr = pts[:, 2]
+    front = zr > 0
+    pts, zr = pts[front], zr[front]
+    ur = K_rgb[0, 0] * pts[:, 0] / zr + K_rgb[0, 2]
+    vr = K_rgb[1, 1] * pts[:, 1] / zr + K_rgb[1, 2]
+    half = 0.5 * (K_rgb[0, 0] / K_ir[0, 0]) * (z[front] / zr)  # half the footprint, RGB pixels
+    reach = int(np.ceil(half.max())) if len(half) else 0
+    ux, vy = np.floor(ur + 0.5), np.floor(vr + 0.5)  # nearest pixel centre: always covered
+    cells, depths = [], []
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            x, y = ux + dx, vy + dy
+            inside = (dx == 0 or np.abs(x - ur) <= half) & (dy == 0 or np.abs(y - vr) <= half)
+            ok = inside & (x >= 0) & (x < width) & (y >= 0) & (y < height)
+            cells.append((y[ok] * width + x[ok]).astype(np.int64))
+            depths.append(zr[ok])
+    cells, depths = np.concatenate(cells), np.concatenate(depths)
+    nearest = np.full(height * width, np.inf)
+    np.minimum.at(nearest, cells, depths)
+    # average the samples of the front surface only: the minimum alone would bias noisy depth low
+    front = depths <= nearest[cells] * (1.0 + FRONT_TOLERANCE)
+    total = np.bincount(cells[front], depths[front], height * width)
+    count = np.bincount(cells[front], minlength=height * width)
+    return (total / np.maximum(count, 1)).reshape(height, width)
