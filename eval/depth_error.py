@@ -1,0 +1,84 @@
+"""`python -m eval.depth_error DATASET --out FILE.png`: how a simulated sensor's depth differs from the
+exact depth on the end-effector (visible mask pixels), for data sets rendered with `--depth stereo|both`.
+
+Prints the median and percentiles of the signed error, the share of end-effector pixels without sensor
+depth, and writes a histogram of the signed error (mm) with one curve per end-effector.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from eval.cli import run_command
+from syneepose.bop import read_frame, read_scene, write_atomic
+from syneepose.errors import UserError
+
+
+def ee_depth_errors(root: Path) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Per end-effector: signed errors (m) where both depths exist, and the share of pixels with no sensor depth."""
+    errors, holes = defaultdict(list), defaultdict(list)
+    scenes = sorted(p for p in (Path(root) / "train").iterdir() if p.is_dir()) if (Path(root) / "train").is_dir() else []
+    for scene in scenes:
+        meta, ids = read_scene(scene)
+        if meta.depth_sensor is None:
+            raise UserError(f"{scene}: exact depth only; render with --depth stereo to compare a sensor's depth")
+        for i in ids:
+            f = read_frame(scene, i)
+            ee = f.mask_visib & (f.depth_gt > 0)
+            both = ee & (f.depth > 0)
+            errors[meta.end_effector].append(f.depth[both] - f.depth_gt[both])
+            holes[meta.end_effector].append((ee.sum(), (ee & (f.depth == 0)).sum()))
+    if not errors:
+        raise UserError(f"{root}: no scenes; give the root of a data set rendered with --depth stereo")
+    return ({ee: np.concatenate(e) for ee, e in errors.items()},
+            {ee: sum(h for _, h in c) / max(1, sum(n for n, _ in c)) for ee, c in holes.items()})
+
+
+def histogram(errors: dict[str, np.ndarray], path: Path, limit_mm: float = 60.0) -> None:
+    fig = Figure(figsize=(7, 4))
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    bins = np.linspace(-limit_mm, limit_mm, 121)
+    for ee, e in sorted(errors.items()):
+        ax.hist(np.clip(e * 1000.0, -limit_mm, limit_mm), bins=bins, histtype="step", density=True, label=ee)
+    ax.set(xlabel="sensor depth - exact depth (mm), end-effector pixels", ylabel="density",
+           title="simulated active-stereo depth error")
+    ax.legend(fontsize="small")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    write_atomic(Path(path), buf.getvalue())
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m eval.depth_error", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("dataset", type=Path)
+    parser.add_argument("--out", type=Path, required=True, help="histogram PNG")
+    args = parser.parse_args(argv)
+
+    def action() -> str:
+        errors, holes = ee_depth_errors(args.dataset)
+        histogram(errors, args.out)
+        lines = []
+        for ee, e in sorted(errors.items()):
+            q = np.percentile(e * 1000.0, [10, 50, 90])
+            lines.append(f"{ee}: median {q[1]:+.1f} mm, |err| median {np.median(np.abs(e)) * 1000:.1f} mm, "
+                         f"10-90% [{q[0]:+.1f}, {q[2]:+.1f}] mm, no depth on {100 * holes[ee]:.1f}% of its pixels")
+        return "\n".join(lines) + f"\n{args.out}"
+
+    return run_command(action)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
