@@ -92,6 +92,9 @@ def test_depth_stereo_layout_and_profile(tmp_path, assets):
     frame = read_frame(scene, ids[0])
     assert meta.depth_sensor["mode"] == "stereo" and frame.depth_gt is not None and frame.ir_left is None
     assert (frame.depth_gt > 0).all() and (frame.depth == 0).any()  # the sensor has holes, the truth none
+    proc = subprocess.run([sys.executable, "-m", "eval.depth_error", str(tmp_path), "--out", str(tmp_path / "h.png")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0 and "robotiq_2f85: median" in proc.stdout and (tmp_path / "h.png").stat().st_size > 5000
     proc = subprocess.run([sys.executable, "-m", "syneepose", "render", "--preset", "mini", "--out", str(tmp_path),
                            "--robots", "ur5e+robotiq_2f85", "--frames", "1", "--resolution", "96x72", "--samples", "2"],
                           capture_output=True, text=True)
