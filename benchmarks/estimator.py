@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.methods.feepe import find_template_set
+from syneepose.templates import find_template_set
 from feepe.backbones import DEFAULT, get_backbone
 from feepe.estimator import Estimator, FeepeOptions
 from feepe.onboarding import onboard
-from syneepose.bop import read_frame, read_scene
+from syneepose.bop import read_frame, read_scene, scene_dirs
 
 STAGES = ("backbone", "retrieval", "matching", "pnp", "optimisation", "total")
 
@@ -28,7 +28,7 @@ def main() -> None:
     args = parser.parse_args()
     root = Path(args.dataset)
     net = get_backbone(args.backbone)
-    scenes = sorted(p for p in (root / "train").iterdir() if p.is_dir())
+    scenes = list(scene_dirs(root / "train").values())
     timings, banks = [], {}
     with tempfile.TemporaryDirectory() as cache:
         for scene in scenes:

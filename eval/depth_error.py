@@ -8,7 +8,6 @@ depth, and writes a histogram of the signed error (mm) with one curve per end-ef
 from __future__ import annotations
 
 import argparse
-import io
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -17,16 +16,16 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from eval.cli import run_command
-from syneepose.bop import read_frame, read_scene, write_atomic
+from eval.plots import save_figure
+from syneepose.cli import run_command
+from syneepose.bop import read_frame, read_scene, scene_dirs
 from syneepose.errors import UserError
 
 
 def ee_depth_errors(root: Path) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Per end-effector: signed errors (m) where both depths exist, and the share of pixels with no sensor depth."""
     errors, holes = defaultdict(list), defaultdict(list)
-    scenes = sorted(p for p in (Path(root) / "train").iterdir() if p.is_dir()) if (Path(root) / "train").is_dir() else []
-    for scene in scenes:
+    for scene in scene_dirs(Path(root) / "train").values():
         meta, ids = read_scene(scene)
         if meta.depth_sensor is None:
             raise UserError(f"{scene}: exact depth only; render with --depth stereo to compare a sensor's depth")
@@ -53,11 +52,7 @@ def histogram(errors: dict[str, np.ndarray], path: Path, limit_mm: float = 60.0)
            title="simulated active-stereo depth error")
     ax.legend(fontsize="small")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120)
-    write_atomic(Path(path), buf.getvalue())
+    save_figure(fig, path)
 
 
 def main(argv=None) -> int:

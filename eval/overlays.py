@@ -22,7 +22,7 @@ import numpy as np
 import trimesh
 
 from eval.bop_results import read_results
-from eval.cli import run_command
+from syneepose.cli import run_command
 from eval.records import FrameErrors, read_errors
 from syneepose.bop import read_frame, write_atomic, write_png
 from syneepose.errors import UserError

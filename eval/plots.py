@@ -18,6 +18,15 @@ from eval.records import FrameErrors
 from syneepose.bop import write_atomic
 
 
+def save_figure(fig: Figure, path: Path) -> None:
+    """The figure as a PNG, written atomically (its folder is made if missing)."""
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    write_atomic(Path(path), buf.getvalue())
+
+
 def mean_curve(rows: list[FrameErrors], attr: str, max_error: float) -> tuple[np.ndarray, np.ndarray]:
     by_ee = defaultdict(list)
     for r in rows:
@@ -38,10 +47,7 @@ def accuracy_curves(runs: list[tuple[str, list[FrameErrors]]], path: Path, max_e
         ax.set(title=title, xlabel="threshold (cm)", xlim=(0, max_error * 100.0), ylim=(0, 1.02), ylabel="accuracy")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize="small")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120)
-    write_atomic(Path(path), buf.getvalue())
+    save_figure(fig, path)
 
 
 def read_trials(path: Path) -> list[dict]:
@@ -69,7 +75,4 @@ def targeting_plot(trial_sets: list[list[dict]], path: Path) -> None:
         ax.set(xlabel="views", title=title, yscale="log")
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize="small")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120)
-    write_atomic(Path(path), buf.getvalue())
+    save_figure(fig, path)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import cv2
 
-from eval.cli import run_command
+from syneepose.cli import run_command
 from eval.overlays import EST_COLOUR, ResultFolder, open_results, write_gif
 from eval.records import FrameErrors
 from eval.tables import Run, load_runs, write_tables

@@ -22,14 +22,14 @@ import numpy as np
 from tqdm import tqdm
 
 from eval.bop_results import BopResult, read_results, write_results
-from eval.cli import run_command
+from syneepose.cli import run_command
 from eval.methods import get_method
 from eval.methods.base import Estimate, Observation
 from eval.metrics import add, adds, model_tree, rotation_error_deg, translation_error_mm
 from eval.model_points import MAX_POINTS, SEED, ModelPoints, load_model_points
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
-from syneepose.bop import SceneMeta, read_frame, read_png, read_scene, write_atomic
+from syneepose.bop import SceneMeta, read_frame, read_png, read_scene, scene_dirs, write_atomic
 from syneepose.errors import UserError
 
 METHOD_OPTIONS = ("variant", "icp", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
@@ -74,7 +74,7 @@ def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list
     if not split_dir.is_dir():
         raise UserError(f"--dataset {split_dir.parent}: no {split_dir.name}/ folder; give the root of a BOP data "
                         "set (python -m syneepose render --out DIR)")
-    present = {int(p.name): p for p in split_dir.iterdir() if p.is_dir() and p.name.isdigit()}
+    present = scene_dirs(split_dir)
     ids = sorted(present)
     if scenes:
         try:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from eval import reported
-from eval.cli import run_command
+from syneepose.cli import run_command
 from eval.plots import accuracy_curves, read_trials, targeting_plot
 from eval.records import read_errors
 from syneepose.bop import write_atomic

@@ -21,16 +21,16 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from eval.cli import run_command
+from syneepose.cli import run_command
 from eval.handeye import BoardDetector, calibrate
-from eval.methods.feepe import find_template_set
+from syneepose.templates import find_template_set
 from eval.metrics import calibration_error
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.estimator import Estimator, FeepeOptions
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
-from syneepose.bop import read_frame, read_scene, write_atomic
+from syneepose.bop import read_frame, read_scene, scene_dirs, write_atomic
 from syneepose.errors import UserError
 from syneepose.scene.marker import MarkerBoard
 
@@ -54,8 +54,7 @@ class Trial:
 
 
 def _pairs(marker_root: Path, plain_root: Path) -> list[tuple[Path, Path]]:
-    marker = {p.name: p for p in (marker_root / "train").iterdir() if p.is_dir()} if (marker_root / "train").is_dir() else {}
-    plain = {p.name: p for p in (plain_root / "train").iterdir() if p.is_dir()} if (plain_root / "train").is_dir() else {}
+    marker, plain = scene_dirs(marker_root / "train"), scene_dirs(plain_root / "train")
     common = sorted(set(marker) & set(plain))
     if not common:
         raise UserError(f"no scene is in both {marker_root}/train and {plain_root}/train; render the same "

@@ -25,18 +25,22 @@ class BowIndex:
     def project(self, desc: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(((desc - self.mean) @ self.components).astype(np.float32))
 
-    def vector(self, desc: np.ndarray) -> np.ndarray:
-        """Unit TF-IDF vector of one image's descriptors."""
-        x = self.project(desc)
+    def nearest_words(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Squared distances and ids of the `knn` nearest words of projected features x (N, d)."""
         d2 = np.sum(x**2, 1)[:, None] - 2.0 * (x @ self.words.T) + self._words_sq
         rows, ids = np.arange(len(x)), np.zeros((len(x), self.knn), int)
         for k in range(self.knn):  # k argmin passes beat a partition for k = 3
             ids[:, k] = d2.argmin(1)
             if k + 1 < self.knn:
                 d2[rows, ids[:, k]] = np.inf
-        d2[rows[:, None], ids] = np.sum((x[:, None, :] - self.words[ids]) ** 2, -1)
-        hist = _soft_histogram(np.maximum(d2[rows[:, None], ids], 0.0), ids, len(self.words), self.sigma)
-        v = hist * self.idf
+        return np.sum((x[:, None, :] - self.words[ids]) ** 2, -1), ids
+
+    def histogram(self, desc: np.ndarray) -> np.ndarray:
+        return _soft_histogram(*self.nearest_words(self.project(desc)), len(self.words), self.sigma)
+
+    def vector(self, desc: np.ndarray) -> np.ndarray:
+        """Unit TF-IDF vector of one image's descriptors."""
+        v = self.histogram(desc) * self.idf
         return v / max(np.linalg.norm(v), 1e-12)
 
     def retrieve(self, desc: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -44,12 +48,6 @@ class BowIndex:
         sims = self.template_vectors @ self.vector(desc)
         order = np.argsort(-sims, kind="stable")[:k]
         return order, sims[order]
-
-
-def _word_index(words: np.ndarray):
-    index = faiss.IndexFlatL2(words.shape[1])
-    index.add(np.ascontiguousarray(words, dtype=np.float32))
-    return index
 
 
 def _soft_histogram(d2: np.ndarray, ids: np.ndarray, n_words: int, sigma: float) -> np.ndarray:
@@ -79,13 +77,12 @@ def build_index(per_template: list[np.ndarray], n_words: int = 2048, dims: int =
     n_words = int(max(16, min(n_words, len(projected) // 39)))
     kmeans = faiss.Kmeans(dims, n_words, niter=iterations, seed=seed, verbose=False, max_points_per_centroid=10_000)
     kmeans.train(projected)
-    words = kmeans.centroids.copy()
-    word_index = _word_index(words)
-    d2, _ = word_index.search(projected, 1)
+    d2, _ = kmeans.index.search(projected, 1)  # the trained words' own faiss index
     sigma = float(np.sqrt(max(np.median(d2), 1e-12)))
 
-    index = BowIndex(mean, components, words, sigma, np.ones(n_words), np.zeros((len(per_template), n_words)), knn)
-    hists = np.stack([_soft_histogram(*word_index.search(index.project(f), knn), n_words, sigma) for f in per_template])
+    index = BowIndex(mean, components, kmeans.centroids.copy(), sigma, np.ones(n_words),
+                     np.zeros((len(per_template), n_words)), knn)
+    hists = np.stack([index.histogram(f) for f in per_template])
     present = (hists > 0).sum(0)
     index.idf = np.log(len(per_template) / np.maximum(present, 1))
     tfidf = hists * index.idf

@@ -7,6 +7,7 @@ object appears at the same scale on both sides of a match.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import time
@@ -18,6 +19,7 @@ import numpy as np
 from feepe.bow import BowIndex, build_index
 from feepe.crop import crop_around_mask
 from feepe.depth import backproject, depth_at
+from syneepose.bop import write_atomic
 from syneepose.errors import UserError
 from syneepose.templates import read_index, read_template
 from syneepose.transforms import inv_T, transform_points
@@ -103,12 +105,12 @@ def _template_features(t, backbone, pad: float) -> tuple[np.ndarray, np.ndarray,
 def _save(path: Path, bank: TemplateBank) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     bow = bank.bow
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.npz")
-    np.savez(tmp, ids=bank.ids, T_cam_model=bank.T_cam_model, offsets=bank.offsets, uv=bank.uv, xyz=bank.xyz,
+    buf = io.BytesIO()
+    np.savez(buf, ids=bank.ids, T_cam_model=bank.T_cam_model, offsets=bank.offsets, uv=bank.uv, xyz=bank.xyz,
              desc=bank.desc.astype(np.float16), seconds=bank.seconds, bow_mean=bow.mean,
              bow_components=bow.components, bow_words=bow.words, bow_sigma=bow.sigma, bow_idf=bow.idf,
              bow_vectors=bow.template_vectors, bow_knn=bow.knn)
-    os.replace(tmp, path)
+    write_atomic(path, buf.getvalue())
 
 
 def _load(path: Path) -> TemplateBank:

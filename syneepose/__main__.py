@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from syneepose.cli import run_command
 from syneepose.errors import UserError
 
 
@@ -191,15 +192,7 @@ def main(argv=None) -> int:
     s.add_argument("--width", type=int, default=160, help="width of one frame in pixels")
     s.set_defaults(func=_show)
     args = parser.parse_args(argv)
-    try:
-        args.func(args)
-    except UserError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    return 0
+    return run_command(lambda: args.func(args))
 
 
 if __name__ == "__main__":

@@ -199,6 +199,14 @@ class SceneWriter:
             write_atomic(self.scene_dir / f"{name}.json", text.encode())
 
 
+def scene_dirs(split_dir: Path) -> dict[int, Path]:
+    """The scene folders of a split (`<root>/train`) by scene id; empty when the split has none."""
+    split_dir = Path(split_dir)
+    if not split_dir.is_dir():
+        return {}
+    return {int(p.name): p for p in sorted(split_dir.iterdir()) if p.is_dir() and p.name.isdigit()}
+
+
 def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
     """The scene's meta and the sorted ids of its complete frames (half-written ones are left out)."""
     scene_dir = Path(scene_dir)

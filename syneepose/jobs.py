@@ -17,7 +17,6 @@ from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from syneepose import __version__, paths
 from syneepose.errors import UserError
@@ -31,16 +30,7 @@ PRESET_KEYS = {"name", "segments", "frames", "resolution", "samples", "render", 
 
 
 def load_preset(name_or_path: str) -> dict:
-    path = Path(name_or_path)
-    if not path.suffix:
-        path = SCENES_DIR / f"{name_or_path}.yaml"
-    if not path.is_file():
-        known = ", ".join(sorted(p.stem for p in SCENES_DIR.glob("*.yaml")))
-        raise UserError(f"preset {name_or_path!r} not found; known presets: {known}, or give a YAML path")
-    try:
-        preset = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise UserError(f"preset {path} is not valid YAML: {exc}") from exc
+    path, preset = paths.named_yaml(name_or_path, SCENES_DIR, "preset")
     unknown = set(preset) - PRESET_KEYS
     if unknown:
         raise UserError(f"preset {path}: unknown keys {sorted(unknown)}; allowed: {sorted(PRESET_KEYS)}")
@@ -139,7 +129,7 @@ def _mounted_board(preset: dict, robot, mesh, spec):
     params = dict(preset.get("marker") or {})
     mount = {k: params.pop(k) for k in ("clearance", "height") if k in params}
     try:
-        board = MarkerBoard(**{k: tuple(v) if k == "squares" else v for k, v in params.items()})
+        board = MarkerBoard(**params)
     except TypeError as exc:
         raise UserError(f"preset {preset.get('name')}: marker section: {exc}") from None
     radius = float(np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 1]).max())

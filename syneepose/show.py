@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from syneepose.bop import read_frame, read_scene, write_png
+from syneepose.bop import read_frame, read_scene, scene_dirs, write_png
 from syneepose.errors import UserError
 from syneepose.templates import read_index, read_template
 
@@ -110,9 +110,9 @@ def scenes_by_config(root: Path) -> dict[str, list[tuple[int, Path, list[int]]]]
         raise UserError(f"{root}: no {split}/ folder; give the root of a data set written by "
                         "python -m syneepose render --out DIR")
     groups = defaultdict(list)
-    for scene_dir in sorted(p for p in split_dir.iterdir() if p.is_dir() and p.name.isdigit()):
+    for scene_id, scene_dir in scene_dirs(split_dir).items():
         meta, im_ids = read_scene(scene_dir)
-        groups[f"{meta.arm}+{meta.end_effector}"].append((int(scene_dir.name), scene_dir, im_ids))
+        groups[f"{meta.arm}+{meta.end_effector}"].append((scene_id, scene_dir, im_ids))
     if not groups:
         raise UserError(f"{split_dir}: no scenes; render some with python -m syneepose render --out {root}")
     return dict(sorted(groups.items()))

@@ -15,9 +15,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
-
 from syneepose.errors import UserError
+from syneepose.paths import named_yaml
 from syneepose.transforms import make_T
 
 SENSORS_DIR = Path(__file__).resolve().parents[1] / "scenes" / "sensors"
@@ -57,13 +56,7 @@ class SensorProfile:
 
 
 def load_profile(name_or_path: str) -> SensorProfile:
-    path = Path(name_or_path)
-    if not path.suffix:
-        path = SENSORS_DIR / f"{name_or_path}.yaml"
-    if not path.is_file():
-        known = ", ".join(sorted(p.stem for p in SENSORS_DIR.glob("*.yaml")))
-        raise UserError(f"sensor profile {name_or_path!r} not found; known: {known}, or give a YAML path")
-    raw = yaml.safe_load(path.read_text())
+    path, raw = named_yaml(name_or_path, SENSORS_DIR, "sensor profile")
     try:
         return SensorProfile(name=raw["name"], baseline=float(raw["baseline"]), ir_hfov_deg=float(raw["ir_hfov_deg"]),
                              ir_scale=float(raw.get("ir_scale", 1.0)), T_rgb_irleft=make_T(t=raw["T_rgb_irleft"]),

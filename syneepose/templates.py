@@ -8,6 +8,7 @@ reads a template set back. A set is one folder per end-effector with BOP-style f
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,6 +66,26 @@ class Template:
 
 def set_dir(root: Path, ee: str, n_views: int, n_inplane: int, resolution: int) -> Path:
     return Path(root) / "templates" / f"{ee}_{n_views}x{n_inplane}_{resolution}px"
+
+
+_SET = re.compile(r"^(?P<ee>.+)_(?P<views>\d+)x(?P<inplane>\d+)_(?P<res>\d+)px$")
+
+
+def find_template_set(root: Path, ee: str, n_templates: int | None) -> Path:
+    """The set of `ee` under a templates folder (`set_dir` names): `n_templates` of them, or the largest
+    count, then the largest resolution."""
+    sets = []
+    for p in sorted(Path(root).glob(f"{ee}_*")):
+        m = _SET.match(p.name)
+        if m and m["ee"] == ee and (p / "templates.json").is_file():
+            sets.append((int(m["views"]) * int(m["inplane"]), int(m["res"]), p))
+    if n_templates is not None:
+        sets = [s for s in sets if s[0] == n_templates]
+    if not sets:
+        wanted = f"{n_templates} templates" if n_templates else "templates"
+        raise UserError(f"no {wanted} for {ee} in {root}; render them with `python -m syneepose templates --out "
+                        f"DATASET --ee {ee}` (--views x --inplane = the count)")
+    return max(sets)[2]
 
 
 def read_index(folder: Path) -> dict:

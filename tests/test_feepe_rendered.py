@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.methods.feepe import find_template_set
+from syneepose.templates import find_template_set
 from feepe.backbones import DEFAULT, get_backbone
 from feepe.estimator import Estimator, FeepeOptions
 from feepe.icp import SurfaceModel

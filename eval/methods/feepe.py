@@ -8,7 +8,6 @@ end-effector model from `<dataset>/models/`.
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 from eval.methods import register
@@ -21,24 +20,7 @@ from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
 from syneepose.bop import SceneMeta
 from syneepose.errors import UserError
-
-_SET = re.compile(r"^(?P<ee>.+)_(?P<views>\d+)x(?P<inplane>\d+)_(?P<res>\d+)px$")
-
-
-def find_template_set(root: Path, ee: str, n_templates: int | None) -> Path:
-    sets = []
-    for p in sorted(Path(root).glob(f"{ee}_*")):
-        m = _SET.match(p.name)
-        if m and m["ee"] == ee and (p / "templates.json").is_file():
-            sets.append((int(m["views"]) * int(m["inplane"]), int(m["res"]), p))
-    if n_templates is not None:
-        sets = [s for s in sets if s[0] == n_templates]
-    if not sets:
-        wanted = f"{n_templates} templates" if n_templates else "templates"
-        raise UserError(f"no {wanted} for {ee} in {root}; render them with `python -m syneepose templates --out "
-                        f"DATASET --ee {ee}` (--views x --inplane = the count)")
-    return max(sets)[2]
-
+from syneepose.templates import find_template_set
 
 @register("feepe")
 class Feepe:

@@ -29,6 +29,7 @@ class MarkerBoard:
     T_ee_board: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     def __post_init__(self):
+        self.squares = tuple(int(n) for n in self.squares)  # YAML and JSON give lists
         if not hasattr(cv2.aruco, self.dictionary):
             raise UserError(f"marker dictionary {self.dictionary!r} unknown; e.g. DICT_5X5_100, DICT_6X6_250")
         if not 0 < self.marker < self.square:
@@ -40,7 +41,7 @@ class MarkerBoard:
 
     def cv_board(self):
         vocabulary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
-        return cv2.aruco.CharucoBoard(tuple(self.squares), self.square, self.marker, vocabulary)
+        return cv2.aruco.CharucoBoard(self.squares, self.square, self.marker, vocabulary)
 
     def image(self, px_per_m: float = 4000.0) -> np.ndarray:
         """The printed face including its white margin, (rows, cols) uint8, top-left = board origin - margin."""
@@ -55,7 +56,7 @@ class MarkerBoard:
 
     @classmethod
     def from_json(cls, d: dict) -> "MarkerBoard":
-        return cls(d["dictionary"], tuple(d["squares"]), d["square"], d["marker"], d["margin"],
+        return cls(d["dictionary"], d["squares"], d["square"], d["marker"], d["margin"],
                    np.array(d["T_ee_board"], dtype=float))
 
 

@@ -1,4 +1,5 @@
-"""How the evaluator's commands end: a user mistake is one `error:` line and exit 2, never a traceback."""
+"""How every command line of the project ends: a user mistake is one `error:` line and exit 2, never a
+traceback; Ctrl-C is exit 130."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from typing import Callable
 from syneepose.errors import UserError
 
 
-def run_command(action: Callable[[], str]) -> int:
-    """Runs `action` and prints the one-line report it returns; exit 0, 2 (UserError) or 130 (Ctrl-C)."""
+def run_command(action: Callable[[], str | None]) -> int:
+    """Runs `action` and prints the report it returns, if any; exit 0, 2 (UserError) or 130 (Ctrl-C)."""
     try:
         report = action()
     except UserError as exc:
@@ -18,5 +19,6 @@ def run_command(action: Callable[[], str]) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-    print(report)
+    if report:
+        print(report)
     return 0
