@@ -32,6 +32,11 @@ def models_dir(root: Path | None = None) -> Path:
     return (root or assets_dir()) / "models"
 
 
+def models_eval_dir(root: Path | None = None) -> Path:
+    """BOP's `models_eval/`: the uniformly resampled models that pose errors are computed on."""
+    return (root or assets_dir()) / "models_eval"
+
+
 def named_yaml(name_or_path: str, folder: Path, kind: str) -> tuple[Path, dict]:
     """A YAML file given by name (`folder/<name>.yaml`, e.g. a preset) or by path, and its contents."""
     path = Path(name_or_path)
