@@ -7,6 +7,7 @@ object appears at the same scale on both sides of a match.
 from __future__ import annotations
 
 import hashlib
+import inspect
 import io
 import json
 import os
@@ -24,7 +25,10 @@ from syneepose.errors import UserError
 from syneepose.templates import read_index, read_template
 from syneepose.transforms import inv_T, transform_points
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: the BoW assignment is stored
+TEMPLATE_IMAGES = ("rgb", "depth", "mask")  # the folders read_template reads
+# the cache key holds every BoW option, defaults included, so changing a default misses the cache
+BOW_DEFAULTS = {n: p.default for n, p in inspect.signature(build_index).parameters.items() if p.default is not p.empty}
 
 
 @dataclass
@@ -50,11 +54,18 @@ def default_cache_dir() -> Path:
     return Path(os.environ.get("FEEPE_CACHE", Path.home() / ".cache" / "feepe"))
 
 
-def _key(folder: Path, backbone, pad: float, bow_options: dict) -> str:
-    index_text = (Path(folder) / "templates.json").read_bytes()
-    spec = json.dumps({"v": CACHE_VERSION, "backbone": backbone.options(), "pad": pad, "bow": bow_options},
-                      sort_keys=True).encode()
-    return hashlib.sha256(index_text + spec).hexdigest()[:20]
+def _key(folder: Path, index: dict, backbone, pad: float, bow_options: dict) -> str:
+    """Hashes templates.json, the bytes of every image onboarding reads, the backbone and the options.
+    Image contents rather than names, sizes and mtimes: a copied or re-checked-out set keeps its cache, and a
+    re-rendered image of the same size within the file system's mtime resolution still misses; reading the
+    few MB of PNGs costs little beside decoding them and running the backbone on a miss."""
+    h = hashlib.sha256((folder / "templates.json").read_bytes())
+    for template_id in sorted(int(k) for k in index):
+        for kind in TEMPLATE_IMAGES:
+            h.update((folder / kind / f"{template_id:06d}.png").read_bytes())
+    spec = {"v": CACHE_VERSION, "backbone": backbone.options(), "pad": pad, "bow": {**BOW_DEFAULTS, **bow_options}}
+    h.update(json.dumps(spec, sort_keys=True).encode())
+    return h.hexdigest()[:20]
 
 
 def onboard(folder: Path, backbone, pad: float = 0.2, bow_options: dict | None = None,
@@ -64,7 +75,7 @@ def onboard(folder: Path, backbone, pad: float = 0.2, bow_options: dict | None =
     index = read_index(folder)
     bow_options = dict(bow_options or {})
     cache_dir = Path(cache_dir) if cache_dir else default_cache_dir()
-    path = cache_dir / f"{folder.name}-{_key(folder, backbone, pad, bow_options)}.npz"
+    path = cache_dir / f"{folder.name}-{_key(folder, index, backbone, pad, bow_options)}.npz"
     if path.is_file():
         return _load(path)
     t0 = time.perf_counter()
@@ -109,13 +120,13 @@ def _save(path: Path, bank: TemplateBank) -> None:
     np.savez(buf, ids=bank.ids, T_cam_model=bank.T_cam_model, offsets=bank.offsets, uv=bank.uv, xyz=bank.xyz,
              desc=bank.desc.astype(np.float16), seconds=bank.seconds, bow_mean=bow.mean,
              bow_components=bow.components, bow_words=bow.words, bow_sigma=bow.sigma, bow_idf=bow.idf,
-             bow_vectors=bow.template_vectors, bow_knn=bow.knn)
+             bow_vectors=bow.template_vectors, bow_knn=bow.knn, bow_assignment=bow.assignment)
     write_atomic(path, buf.getvalue())
 
 
 def _load(path: Path) -> TemplateBank:
     z = np.load(path)
     bow = BowIndex(z["bow_mean"], z["bow_components"], z["bow_words"], float(z["bow_sigma"]), z["bow_idf"],
-                   z["bow_vectors"], int(z["bow_knn"]))
+                   z["bow_vectors"], int(z["bow_knn"]), str(z["bow_assignment"]))
     return TemplateBank(z["ids"], z["T_cam_model"], z["offsets"], z["uv"], z["xyz"], z["desc"].astype(np.float32),
                         bow, float(z["seconds"]))

@@ -8,6 +8,14 @@ with the current frame's two; this generalises it to every key frame and to any 
 candidate's implied calibration is a hypothesis, supported by the inliers of all candidates (of any key
 frame) whose implied rotation lies within `tolerance_deg` of it; the best-supported hypothesis wins and
 the candidates outside its tolerance are dropped.
+
+The vote does not know the end-effector's symmetries, so it drops more than symmetric twins: every
+candidate whose implied calibration rotation is more than `tolerance_deg` from the winner's - a twin, a
+wrong view from retrieval, a PnP solution on bad matches - leaves the optimisation, in every key frame
+and the current one. The paper drops only the wrong one of each frame's two symmetric modes; this is an
+outlier filter as well, and on an asymmetric end-effector it is only that. If every candidate of the
+current frame is dropped, the current frame contributes no matches and the pose comes from the key frames
+through forward kinematics.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""The DINOv2 backbone's loading and layer code, on tiny randomly initialised models of the same
-architecture (no weights can be downloaded here)."""
+"""The DINOv2 backbone's loading and layer code, on tiny random models of the same architecture (no weights
+can be downloaded here), checked against DINOv2's architecture written out in the test."""
 
 import numpy as np
 import pytest
@@ -11,74 +11,117 @@ from feepe.crop import Crop
 from syneepose.errors import UserError
 
 
-def _tiny(registers=False, swiglu=False):
-    from transformers import Dinov2Config, Dinov2Model, Dinov2WithRegistersConfig, Dinov2WithRegistersModel
+def _tiny():
+    from transformers import Dinov2Config, Dinov2Model
 
-    kw = dict(hidden_size=32, num_hidden_layers=4, num_attention_heads=2, patch_size=14, image_size=70,
-              use_swiglu_ffn=swiglu)
     torch.manual_seed(0)
+    return Dinov2Model(Dinov2Config(hidden_size=32, num_hidden_layers=4, num_attention_heads=2, patch_size=14,
+                                    image_size=70)).eval()
+
+
+DIM, DEPTH, HEADS, GRID = 32, 4, 2, 5  # a tiny ViT: 4 blocks on a 70 px image (5 x 5 patches)
+MEAN, STD = [0.485, 0.456, 0.406], [0.229, 0.224, 0.225]
+
+
+def _hub_state(registers: bool, swiglu: bool) -> dict:
+    """Random weights under the original DINOv2 (torch hub) names and shapes, made without transformers."""
+    g = torch.Generator().manual_seed(1)
+
+    def r(*shape, scale=0.2):
+        return scale * torch.randn(*shape, generator=g)
+
+    hidden = (int(4 * DIM * 2 / 3) + 7) // 8 * 8 if swiglu else 4 * DIM  # DINOv2's SwiGLUFFNFused rounding
+    s = {"cls_token": r(1, 1, DIM), "pos_embed": r(1, 1 + GRID * GRID, DIM), "mask_token": r(1, DIM),
+         "patch_embed.proj.weight": r(DIM, 3, 14, 14, scale=0.05), "patch_embed.proj.bias": r(DIM),
+         "norm.weight": 1 + r(DIM), "norm.bias": r(DIM)}
     if registers:
-        return Dinov2WithRegistersModel(Dinov2WithRegistersConfig(num_register_tokens=4, **kw)).eval()
-    return Dinov2Model(Dinov2Config(**kw)).eval()
+        s["register_tokens"] = r(1, 4, DIM)
+    for i in range(DEPTH):
+        b = f"blocks.{i}."
+        mlp = ({"mlp.w12": (2 * hidden, DIM), "mlp.w3": (DIM, hidden)} if swiglu
+               else {"mlp.fc1": (hidden, DIM), "mlp.fc2": (DIM, hidden)})
+        for name, (n_out, n_in) in {"attn.qkv": (3 * DIM, DIM), "attn.proj": (DIM, DIM), **mlp}.items():
+            s[b + name + ".weight"], s[b + name + ".bias"] = r(n_out, n_in, scale=n_in**-0.5), r(n_out)
+        for name in ("norm1", "norm2"):
+            s[b + name + ".weight"], s[b + name + ".bias"] = 1 + r(DIM), r(DIM)
+        s[b + "ls1.gamma"], s[b + "ls2.gamma"] = 1 + r(DIM), 1 + r(DIM)
+    return s
 
 
-def _to_hub(model) -> dict:
-    """Our model's weights under the original DINOv2 (torch hub) names: the inverse of the converter."""
-    s = model.state_dict()
-    out = {"cls_token": s["embeddings.cls_token"], "pos_embed": s["embeddings.position_embeddings"],
-           "mask_token": s["embeddings.mask_token"].reshape(1, 1, -1),
-           "patch_embed.proj.weight": s["embeddings.patch_embeddings.projection.weight"],
-           "patch_embed.proj.bias": s["embeddings.patch_embeddings.projection.bias"],
-           "norm.weight": s["layernorm.weight"], "norm.bias": s["layernorm.bias"]}
-    if "embeddings.register_tokens" in s:
-        out["register_tokens"] = s["embeddings.register_tokens"]
-    for i in range(model.config.num_hidden_layers):
-        a, b = f"encoder.layer.{i}.", f"blocks.{i}."
-        for p in ("weight", "bias"):
-            out[b + f"attn.qkv.{p}"] = torch.cat([s[a + f"attention.{n}.{p}"] for n in ("q_proj", "k_proj", "v_proj")])
-            out[b + f"attn.proj.{p}"] = s[a + f"attention.o_proj.{p}"]
-            out[b + f"norm1.{p}"], out[b + f"norm2.{p}"] = s[a + f"norm1.{p}"], s[a + f"norm2.{p}"]
-            if model.config.use_swiglu_ffn:
-                out[b + f"mlp.w12.{p}"] = torch.cat([s[a + f"mlp.gate_proj.{p}"], s[a + f"mlp.up_proj.{p}"]])
-                out[b + f"mlp.w3.{p}"] = s[a + f"mlp.down_proj.{p}"]
-            else:
-                out[b + f"mlp.fc1.{p}"], out[b + f"mlp.fc2.{p}"] = s[a + f"mlp.fc1.{p}"], s[a + f"mlp.fc2.{p}"]
-        out[b + "ls1.gamma"], out[b + "ls2.gamma"] = s[a + "layer_scale1.lambda1"], s[a + "layer_scale2.lambda1"]
-    return out
+def _plain_forward(s: dict, x: torch.Tensor) -> list[torch.Tensor]:
+    """Every block's output tokens: DINOv2's VisionTransformer (prepare_tokens, Block, Attention, Mlp /
+    SwiGLUFFN, LayerNorm eps 1e-6) written out from its state dict, independently of transformers."""
+    F = torch.nn.functional
+
+    def ln(t, p):
+        return F.layer_norm(t, t.shape[-1:], s[p + ".weight"], s[p + ".bias"], eps=1e-6)
+
+    def lin(t, p):
+        return F.linear(t, s[p + ".weight"], s[p + ".bias"])
+
+    t = F.conv2d(x, s["patch_embed.proj.weight"], s["patch_embed.proj.bias"], stride=14).flatten(2).transpose(1, 2)
+    t = torch.cat([s["cls_token"].expand(len(t), -1, -1), t], 1) + s["pos_embed"]
+    if "register_tokens" in s:
+        t = torch.cat([t[:, :1], s["register_tokens"].expand(len(t), -1, -1), t[:, 1:]], 1)
+    outs = []
+    for i in range(DEPTH):
+        b = f"blocks.{i}."
+        B, N, C = t.shape
+        qkv = lin(ln(t, b + "norm1"), b + "attn.qkv").reshape(B, N, 3, HEADS, C // HEADS).permute(2, 0, 3, 1, 4)
+        attn = ((qkv[0] * (C // HEADS) ** -0.5) @ qkv[1].transpose(-2, -1)).softmax(-1)
+        t = t + s[b + "ls1.gamma"] * lin((attn @ qkv[2]).transpose(1, 2).reshape(B, N, C), b + "attn.proj")
+        h = ln(t, b + "norm2")
+        if b + "mlp.w12.weight" in s:
+            x1, x2 = lin(h, b + "mlp.w12").chunk(2, -1)
+            h = lin(F.silu(x1) * x2, b + "mlp.w3")
+        else:
+            h = lin(F.gelu(lin(h, b + "mlp.fc1")), b + "mlp.fc2")
+        t = t + s[b + "ls2.gamma"] * h
+        outs.append(t)
+    return outs
 
 
-def test_layer_counts_blocks_from_one_and_matches_hidden_states():
-    model = _tiny()
-    net = Dinov2Backbone("dinov2_vits14", layer=3, crop_size=70, model=model)
-    rgb = np.random.default_rng(0).integers(0, 255, (70, 70, 3), dtype=np.uint8)
-    tokens = net.patch_tokens(rgb)
-    x = torch.from_numpy(((rgb / 255.0 - [0.485, 0.456, 0.406]) / [0.229, 0.224, 0.225]).transpose(2, 0, 1)[None]).float()
-    with torch.inference_mode():
-        ref = model.layernorm(model(x, output_hidden_states=True).hidden_states[3])[0, 1:]
-    assert tokens.shape == (5, 5, 32)
-    np.testing.assert_allclose(tokens.reshape(25, 32), ref.numpy(), atol=1e-5)
+def _load_hub(tmp_path, monkeypatch, registers: bool, swiglu: bool):
+    import feepe.backbones.dinov2 as d
+
+    state = _hub_state(registers, swiglu)
+    path = tmp_path / "dinov2_vits14_pretrain.pth"
+    torch.save(state, path)
+    monkeypatch.setitem(d.ARCH, "s", ("small", DIM, DEPTH, HEADS, swiglu))  # the real table has ViT-S's 12 blocks
+    return state, load_model("dinov2_vits14_reg" if registers else "dinov2_vits14", path)
 
 
 @pytest.mark.parametrize("registers,swiglu", [(False, False), (True, False), (False, True)])
-def test_hub_checkpoint_loads_to_the_same_network(tmp_path, registers, swiglu):
-    model = _tiny(registers, swiglu)
-    path = tmp_path / "dinov2_vits14_pretrain.pth"
-    torch.save(_to_hub(model), path)
-    name = "dinov2_vits14_reg" if registers else "dinov2_vits14"
-    state = convert_hub_state_dict(torch.load(path, weights_only=True), 4)
-    assert set(state) == set(model.state_dict())
-    # the real architecture table has 12 blocks for ViT-S: load the tiny file through a patched table
-    import feepe.backbones.dinov2 as d
-
-    saved = d.ARCH["s"]
-    d.ARCH["s"] = ("small", 32, 4, 2, swiglu)
-    try:
-        loaded = load_model(name, path)
-    finally:
-        d.ARCH["s"] = saved
-    x = torch.randn(1, 3, 70, 70)
+def test_hub_checkpoint_computes_the_original_network(tmp_path, monkeypatch, registers, swiglu):
+    """The converted checkpoint in transformers' model gives the original architecture's output."""
+    state, model = _load_hub(tmp_path, monkeypatch, registers, swiglu)
+    assert set(convert_hub_state_dict(state, DEPTH)) == set(model.state_dict())
+    x = torch.randn(2, 3, 70, 70, generator=torch.Generator().manual_seed(2))
     with torch.inference_mode():
-        np.testing.assert_allclose(loaded(x).last_hidden_state.numpy(), model(x).last_hidden_state.numpy(), atol=1e-5)
+        ours = model(x).last_hidden_state
+        ref = torch.nn.functional.layer_norm(_plain_forward(state, x)[-1], (DIM,), state["norm.weight"],
+                                             state["norm.bias"], eps=1e-6)
+    assert ours.shape == ref.shape == (2, 1 + 4 * registers + GRID * GRID, DIM)
+    np.testing.assert_allclose(ours.numpy(), ref.numpy(), atol=1e-4)
+
+
+@pytest.mark.parametrize("registers", [False, True])
+def test_layer_is_foundposes_block_index_with_the_final_norm(tmp_path, monkeypatch, registers):
+    """Layer L = the output of blocks[L] (FoundPose's hook index), final LayerNorm applied, patch tokens
+    only; the same as transformers' hidden_states[L + 1] (hidden_states[0] is the embedding)."""
+    state, model = _load_hub(tmp_path, monkeypatch, registers, False)
+    rgb = np.random.default_rng(0).integers(0, 255, (70, 70, 3), dtype=np.uint8)
+    x = torch.from_numpy(((rgb / 255.0 - MEAN) / STD).transpose(2, 0, 1)[None]).float()
+    with torch.inference_mode():
+        blocks = _plain_forward(state, x)
+        hidden = [model.layernorm(h) for h in model(x, output_hidden_states=True).hidden_states]
+    for layer in range(DEPTH):
+        tokens = Dinov2Backbone("dinov2_vits14", layer=layer, crop_size=70, model=model).patch_tokens(rgb)
+        assert tokens.shape == (GRID, GRID, DIM)
+        ref = torch.nn.functional.layer_norm(blocks[layer], (DIM,), state["norm.weight"], state["norm.bias"], eps=1e-6)
+        np.testing.assert_allclose(tokens.reshape(-1, DIM), ref[0, -GRID * GRID:].numpy(), atol=1e-4)
+        np.testing.assert_allclose(tokens.reshape(-1, DIM), hidden[layer + 1][0, -GRID * GRID:].numpy(), atol=1e-4)
+    assert not np.allclose(blocks[2].numpy(), blocks[3].numpy(), atol=1e-2)  # neighbouring layers differ
 
 
 def test_hugging_face_folder_and_features_inside_mask(tmp_path):
@@ -103,5 +146,6 @@ def test_missing_weights_say_how_to_provide_them(tmp_path, monkeypatch):
         get_backbone("dinov2_vitl14")
     with pytest.raises(UserError, match="unknown"):
         get_backbone("dinov2_vitx14")
-    with pytest.raises(UserError, match="layer 9 does not exist"):
-        Dinov2Backbone("dinov2_vits14", layer=9, crop_size=70, model=_tiny())
+    with pytest.raises(UserError, match="blocks 0..3; layer 4 does not exist"):
+        Dinov2Backbone("dinov2_vits14", layer=4, crop_size=70, model=_tiny())
+    assert Dinov2Backbone("dinov2_vits14", layer=0, crop_size=70, model=_tiny()).layer == 0

@@ -142,7 +142,10 @@ def test_consensus_picks_the_symmetry_mode_that_agrees_with_kinematics():
         # every frame also has a symmetric twin; frame 0's twin has more inliers than its true pose
         n = 60 if i == 0 else 20
         cands.append(Candidate(0, true @ flip, np.zeros((n, 2)), np.zeros((n, 3)), np.zeros((n, 3)), 1.0))
+        # and a wrong view 90 deg off, no symmetry image: the vote drops it as well (an outlier filter too)
+        wrong = true @ make_T(Rotation.from_euler("x", 90, degrees=True).as_matrix())
+        cands.append(Candidate(0, wrong, np.zeros((10, 2)), np.zeros((10, 3)), np.zeros((10, 3)), 1.0))
         frames.append((T_base_ee, cands))
     keep, T = consensus(frames, tolerance_deg=20.0)
-    assert all(k == [True, False] for k in keep)
+    assert all(k == [True, False, False] for k in keep)
     assert np.rad2deg(rotation_angle(T[:3, :3], T_cam_base[:3, :3])) < 5

@@ -1,9 +1,11 @@
 """DINOv2 patch features (the paper's backbone), from local weights only.
 
-Layers count transformer blocks from 1: "layer 19" of ViT-L/14 is the output of its 19th block (of 24),
-which FoundPose's code writes as `blocks[18]`. The final LayerNorm is applied to that output, as
-DINOv2's `get_intermediate_layers(norm=True)` does; only the blocks up to the layer are run. Without a
-layer, the paper's relative depth 19/24 is used (ViT-S/B: 10 of 12, ViT-G: 32 of 40).
+Layers count transformer blocks from 0, as FoundPose does (its extractor hooks `blocks[layer]`, and its
+ViT-L last layer is 23): "layer 19" of ViT-L/14 is the output of `blocks[19]`, the 20th of 24 blocks, so
+the paper's ablation {11, 19, 23} ends at the last block. The final LayerNorm is applied to that output,
+as FoundPose does with `norm=1` (its default and its configurations); only blocks 0..layer are run.
+Without a layer, the paper's relative depth 19 of 0..23 is used (ViT-S/B: 9 of 0..11, FoundPose's ViT-S
+choice; ViT-G: 32 of 0..39).
 
 Weights come from, in order: an explicit path (a Hugging Face model folder, or an original torch-hub
 `.pth` checkpoint), the Hugging Face cache (`facebook/dinov2-large`, ...), the torch-hub checkpoint cache
@@ -48,7 +50,7 @@ def hub_checkpoint(name: str) -> Path:
 
 
 def default_layer(name: str) -> int:
-    return round(19 / 24 * ARCH[parse_name(name)[0]][2])
+    return round(19 / 23 * (ARCH[parse_name(name)[0]][2] - 1))
 
 
 def hf_config(name: str, image_size: int = 518):
@@ -148,9 +150,10 @@ class Dinov2Backbone:
         if self.model is None:
             self.model = load_model(self.variant, self.weights)
         blocks = len(self.model.encoder.layer)
-        self.layer = self.layer or default_layer(self.variant)
-        if not 1 <= self.layer <= blocks:
-            raise UserError(f"{self.variant} has blocks 1..{blocks}; layer {self.layer} does not exist")
+        if self.layer is None:
+            self.layer = default_layer(self.variant)
+        if not 0 <= self.layer < blocks:
+            raise UserError(f"{self.variant} has blocks 0..{blocks - 1}; layer {self.layer} does not exist")
 
     @property
     def name(self) -> str:
@@ -170,7 +173,7 @@ class Dinov2Backbone:
         x = torch.from_numpy(x.transpose(2, 0, 1)[None].astype(np.float32))
         with torch.inference_mode():
             h = self.model.embeddings(x)
-            for block in self.model.encoder.layer[: self.layer]:
+            for block in self.model.encoder.layer[: self.layer + 1]:
                 h = block(h, None)
             h = self.model.layernorm(h)
         n = self.crop_size // PATCH
