@@ -1,4 +1,5 @@
-"""`python -m syneepose assets`: sources -> part URDFs -> assembled URDFs -> BOP end-effector models.
+"""`python -m syneepose assets`: sources -> part URDFs -> assembled URDFs -> BOP end-effector models ->
+their resampled evaluation models (`models_eval/`).
 
 Idempotent: each output folder carries a `.build.json` with the hash of what produced it (catalogue
 entry, source version, converter code); a run whose hashes all match does no work. Each output folder
@@ -14,6 +15,7 @@ import shutil
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
+from importlib.metadata import version
 from pathlib import Path
 
 import trimesh
@@ -23,6 +25,7 @@ from syneepose.errors import UserError
 from syneepose.robots import ee_models
 from syneepose.robots.catalog import Catalog, Part, load_catalog
 from syneepose.robots.model import read_urdf, write_urdf
+from syneepose.robots.models_eval import build_models_eval
 from syneepose.robots.parts import convert_part
 from syneepose.robots.robot import assemble
 from syneepose.robots.sources import ensure_source
@@ -32,6 +35,7 @@ _HERE = Path(__file__).parent
 CONVERTER_CODE = ["model.py", "mjcf.py", "urdf_source.py", "parts.py", "../transforms.py"]
 ASSEMBLY_CODE = ["robot.py"]
 MODEL_CODE = ["ee_models.py", "symmetry.py"]
+MODEL_EVAL_CODE = ["models_eval.py", "../blender/remesh.py"]
 
 
 def _code_hash(files) -> str:
@@ -73,11 +77,12 @@ class BuildReport:
     parts: list[str] = field(default_factory=list)
     configs: list[str] = field(default_factory=list)
     models: list[str] = field(default_factory=list)
+    models_eval: dict[str, int] = field(default_factory=dict)  # end-effector -> vertex count
     seconds: float = 0.0
 
     @property
     def did_work(self) -> bool:
-        return bool(self.parts or self.configs or self.models)
+        return bool(self.parts or self.configs or self.models or self.models_eval)
 
 
 def part_recipe(catalog: Catalog, part: Part) -> str:
@@ -160,7 +165,7 @@ def build_assets(out: Path | None = None, configs: list[str] | None = None, forc
         try:
             infos = {}
             for ee in ees:
-                mesh = ee_models.load_ee_mesh(ee, paths.part_urdf(ee.name, out))
+                mesh = ee_models.orient_outward(ee_models.load_ee_mesh(ee, paths.part_urdf(ee.name, out)))
                 ee_models.write_ply_mm(mesh, tmp / f"obj_{ee.obj_id:06d}.ply")
                 infos[str(ee.obj_id)] = ee_models.model_info(mesh, ee)
                 report.models.append(ee.name)
@@ -171,5 +176,19 @@ def build_assets(out: Path | None = None, configs: list[str] | None = None, forc
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         log(f"BOP models for {len(ees)} end-effectors: {time.perf_counter() - t0:.1f} s")
+
+    models_eval = paths.models_eval_dir(out)
+    eval_recipe = _hash(recipe, _code_hash(MODEL_EVAL_CODE), version("bpy"))
+    if force or _read_stamp(models_eval).get("recipe") != eval_recipe:
+        t0 = time.perf_counter()
+        tmp = _temp_dir(models_eval)
+        try:
+            report.models_eval = build_models_eval(models, ees, tmp)
+            (tmp / STAMP).write_text(json.dumps({"recipe": eval_recipe}))
+            _swap_in(tmp, models_eval)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        log(f"BOP evaluation models (voxel remesh): {time.perf_counter() - t0:.1f} s, vertices "
+            + ", ".join(f"{name} {n}" for name, n in report.models_eval.items()))
     report.seconds = time.perf_counter() - start
     return report

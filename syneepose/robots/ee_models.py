@@ -1,5 +1,6 @@
 """End-effector rigid models: the mesh at the canonical finger configuration, in the `ee_mount`
-frame, written as BOP `models/obj_XXXXXX.ply` (millimetres, vertex colours) + `models_info.json`."""
+frame, written as BOP `models/obj_XXXXXX.ply` (millimetres, outward unit vertex normals, vertex colours) +
+`models_info.json`."""
 
 from __future__ import annotations
 
@@ -38,6 +39,47 @@ def load_ee_mesh(ee: EndEffector, part_urdf: Path) -> trimesh.Trimesh:
     return rigid_mesh(read_urdf(part_urdf), Path(part_urdf).parent, dict(ee.canonical))
 
 
+def orient_outward(mesh: trimesh.Trimesh, n_rays: int = 50000, seed: int = 0) -> trimesh.Trimesh:
+    """The same vertices and faces, with faces flipped so that each connected component (vertices welded by
+    position) is consistently wound and faces the outside: the side that rays from a surrounding sphere hit
+    first. A component no ray reaches (an internal cavity) keeps the source's orientation (the majority by
+    area). Some sources mix inward faces: the Shadow Hand's palm, the Robotiq 3-finger's links."""
+    uniq, inv = trimesh.grouping.unique_rows(mesh.vertices, digits=8)
+    welded = trimesh.Trimesh(mesh.vertices[uniq], inv[mesh.faces], process=False)
+    vote = _outside_votes(welded, n_rays, seed)
+    area = welded.area_faces
+    flip = np.zeros(len(welded.faces), dtype=bool)
+    for comp in trimesh.graph.connected_components(welded.face_adjacency, nodes=np.arange(len(welded.faces)),
+                                                   min_len=1):
+        part = welded.submesh([comp], append=True)
+        if not part.is_winding_consistent:
+            before = part.faces.copy()
+            trimesh.repair.fix_winding(part)
+            flip[comp] = ~(part.faces == before).all(axis=1)
+        v = vote[comp].sum()
+        if v < 0 or (v == 0 and area[comp][flip[comp]].sum() > area[comp][~flip[comp]].sum()):
+            flip[comp] = ~flip[comp]
+    faces = mesh.faces.copy()
+    faces[flip] = faces[flip][:, ::-1]
+    return trimesh.Trimesh(mesh.vertices, faces, vertex_colors=mesh.visual.vertex_colors, process=False)
+
+
+def _outside_votes(mesh: trimesh.Trimesh, n_rays: int, seed: int) -> np.ndarray:
+    """Per face: (rays hitting it first from its front) - (from its back); rays come from a sphere around
+    the mesh and aim at area-uniform surface samples."""
+    rng = np.random.default_rng(seed)
+    radius = np.linalg.norm(mesh.extents)
+    dirs = rng.normal(size=(n_rays, 3))
+    origins = mesh.bounds.mean(axis=0) + radius * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    targets, _ = trimesh.sample.sample_surface(mesh, n_rays, seed=seed)
+    rays = targets - origins
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    tri, ray = mesh.ray.intersects_id(origins, rays, multiple_hits=False)
+    vote = np.zeros(len(mesh.faces))
+    np.add.at(vote, tri, -np.sign(np.einsum("ij,ij->i", mesh.face_normals[tri], rays[ray])))
+    return vote
+
+
 def model_info(mesh_m: trimesh.Trimesh, ee: EndEffector) -> dict:
     """BOP models_info entry (mm). Claimed symmetries must hold on the mesh, else an error."""
     lo, hi = mesh_m.bounds * 1000.0
@@ -67,10 +109,15 @@ def model_info(mesh_m: trimesh.Trimesh, ee: EndEffector) -> dict:
 
 
 def write_ply_mm(mesh_m: trimesh.Trimesh, path: Path) -> None:
-    mesh = mesh_m.copy()
-    mesh.apply_scale(1000.0)
+    """Binary PLY in mm with `nx ny nz` (angle-weighted face normals, unit; bop_toolkit's renderer needs them)
+    and the vertex colours when the mesh has them. Normals come from the float32 vertices as written, so a
+    reader recomputing them from the file gets the same."""
+    mesh = trimesh.Trimesh((mesh_m.vertices * 1000.0).astype(np.float32), mesh_m.faces, process=False)
+    if mesh_m.visual.kind == "vertex":
+        mesh.visual.vertex_colors = mesh_m.visual.vertex_colors
     tmp = Path(path).with_name(f".{Path(path).name}.tmp{os.getpid()}")
-    tmp.write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding="binary", include_attributes=False))
+    tmp.write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=True,
+                                                    include_attributes=False))
     os.replace(tmp, path)
 
 
