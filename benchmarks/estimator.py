@@ -15,7 +15,7 @@ from syneepose.templates import find_template_set
 from feepe.backbones import DEFAULT, get_backbone
 from feepe.estimator import Estimator, FeepeOptions
 from feepe.onboarding import onboard
-from syneepose.bop import read_frame, read_scene, scene_dirs
+from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir
 
 STAGES = ("backbone", "retrieval", "matching", "pnp", "optimisation", "total")
 
@@ -28,7 +28,7 @@ def main() -> None:
     args = parser.parse_args()
     root = Path(args.dataset)
     net = get_backbone(args.backbone)
-    scenes = list(scene_dirs(root / "train").values())
+    scenes = list(scene_dirs(split_dir(root)).values())
     timings, banks = [], {}
     with tempfile.TemporaryDirectory() as cache:
         for scene in scenes:

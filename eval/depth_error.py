@@ -18,14 +18,14 @@ from matplotlib.figure import Figure
 
 from eval.plots import save_figure
 from syneepose.cli import run_command
-from syneepose.bop import read_frame, read_scene, scene_dirs
+from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir
 from syneepose.errors import UserError
 
 
 def ee_depth_errors(root: Path) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Per end-effector: signed errors (m) where both depths exist, and the share of pixels with no sensor depth."""
     errors, holes = defaultdict(list), defaultdict(list)
-    for scene in scene_dirs(Path(root) / "train").values():
+    for scene in scene_dirs(split_dir(root)).values():
         meta, ids = read_scene(scene)
         if meta.depth_sensor is None:
             raise UserError(f"{scene}: exact depth only; render with --depth stereo to compare a sensor's depth")

@@ -24,7 +24,7 @@ import trimesh
 from eval.bop_results import read_results
 from syneepose.cli import run_command
 from eval.records import FrameErrors, read_errors
-from syneepose.bop import read_frame, write_atomic, write_png
+from syneepose.bop import read_frame, split_name, write_atomic, write_png
 from syneepose.errors import UserError
 from syneepose.show import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
 
@@ -159,7 +159,7 @@ def open_results(folder: Path, dataset: Path | None = None) -> ResultFolder:
                         "pass --dataset DIR where the data set is now")
     estimates = {(r.scene_id, r.im_id): r.T_cam_ee for r in read_results(folder / "results.csv").values()}
     errors = {(r.scene_id, r.im_id): r for r in read_errors(folder / "errors.csv")}
-    return ResultFolder(folder, root, recorded.get("split", "train"), estimates, errors)
+    return ResultFolder(folder, root, split_name(root), estimates, errors)
 
 
 def write_gif(path: Path, images: list[np.ndarray], fps: float = 4.0) -> None:

@@ -30,7 +30,7 @@ from feepe.backbones import get_backbone
 from feepe.estimator import Estimator, FeepeOptions
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
-from syneepose.bop import read_frame, read_scene, scene_dirs, write_atomic
+from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir, write_atomic
 from syneepose.errors import UserError
 from syneepose.scene.marker import MarkerBoard
 
@@ -54,11 +54,11 @@ class Trial:
 
 
 def _pairs(marker_root: Path, plain_root: Path) -> list[tuple[Path, Path]]:
-    marker, plain = scene_dirs(marker_root / "train"), scene_dirs(plain_root / "train")
+    marker, plain = scene_dirs(split_dir(marker_root)), scene_dirs(split_dir(plain_root))
     common = sorted(set(marker) & set(plain))
     if not common:
-        raise UserError(f"no scene is in both {marker_root}/train and {plain_root}/train; render the same "
-                        "--preset/--seed/--robots twice, once with --marker")
+        raise UserError(f"no scene is in both {split_dir(marker_root)} and {split_dir(plain_root)}; render the "
+                        "same --preset/--seed/--robots twice, once with --marker")
     for name in common:
         m_meta, m_ids = read_scene(marker[name])
         p_meta, p_ids = read_scene(plain[name])

@@ -70,7 +70,10 @@ def _render(args) -> None:
     def report(job):
         bar.update(job.frames - done_before[job])
 
-    _execute(args, J.run_job, todo, report, bar)
+    try:
+        _execute(args, J.run_job, todo, report, bar)
+    finally:  # the root files list what exists, also after a failed or interrupted run
+        J.write_root_files(out, preset, width, height)
     print(f"render: {len(jobs)} segments in {out / J.SPLIT}")
 
 
@@ -151,7 +154,7 @@ def main(argv=None) -> int:
     p.set_defaults(func=_assets)
     r = sub.add_parser("render", help="render RGB-D segments in BOP format")
     r.add_argument("--preset", default="mini", help="mini, paper or a YAML path")
-    r.add_argument("--out", required=True, help="data set root (BOP: <out>/train/<scene_id>/)")
+    r.add_argument("--out", required=True, help="data set root (BOP: <out>/test/<scene_id>/)")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--robots", help="comma-separated ARM+EE configurations (default: all 18)")
     r.add_argument("--segments", type=int, help="segments per configuration (preset default)")

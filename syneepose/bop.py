@@ -1,6 +1,7 @@
 """BOP "scenewise" writer and reader: one video segment = one BOP scene, plus our robot sidecar
 `scene_robot.json`. Every file goes to a temp name and is `os.replace`d, so a killed run leaves only
-whole files and a new writer resumes the scene frame by frame."""
+whole files and a new writer resumes the scene frame by frame. The data set's root files (camera.json,
+test_targets_bop19/24.json) are derived from the scenes present, so any order of runs ends the same."""
 
 from __future__ import annotations
 
@@ -13,9 +14,12 @@ import cv2
 import numpy as np
 
 from syneepose.errors import UserError
+from syneepose.robots.catalog import load_catalog
 from syneepose.transforms import make_T
 
 GT_ID = 0  # one object (the end-effector) per frame
+DEPTH_SCALE = 0.1  # mm per depth PNG unit
+MIN_VISIB_FRACT = 0.1  # bop_toolkit's threshold for a test target (enumerate_test_targets) and COCO `ignore`
 # scene_robot last: a frame's sidecar record exists only once its BOP records do.
 _JSONS = ("scene_camera", "scene_gt", "scene_gt_info", "scene_robot")
 
@@ -43,7 +47,7 @@ class SceneMeta:
     end_effector: str
     joint_names: list[str]
     T_cam_base: np.ndarray  # (4, 4) metres, static in a segment; the BOP world frame is the robot base
-    depth_scale: float = 0.1  # mm per depth PNG unit
+    depth_scale: float = DEPTH_SCALE
     marker: dict | None = None  # MarkerBoard.to_json() when a ChArUco board rides on the end-effector
     depth_sensor: dict | None = None  # {"mode": "stereo" | "both", "profile": {...}}; None: exact depth
 
@@ -89,10 +93,31 @@ def _load_records(scene_dir: Path) -> dict[str, dict]:
     return {name: json.loads(p.read_text()) if p.exists() else {} for name, p in paths.items()}
 
 
+def _ordered(obj):
+    """Dict keys in a fixed order, frame ids ("0", "1", ..., "10") as integers: BOP files run 0, 1, 2, ..."""
+    if isinstance(obj, dict):
+        keys = sorted(obj, key=lambda k: (0, int(k), "") if k.isdigit() else (1, 0, k))
+        return {k: _ordered(obj[k]) for k in keys}
+    if isinstance(obj, list):
+        return [_ordered(v) for v in obj]
+    return obj
+
+
+def write_json(path: Path, content, indent: int | None = 2) -> None:
+    write_atomic(path, json.dumps(_ordered(content), indent=indent).encode())
+
+
 def _complete(scene_dir: Path, records: dict[str, dict], im_id: int) -> bool:
     key, sensor = str(im_id), records["scene_robot"].get("depth_sensor")
     return (all(key in records[name] for name in _JSONS[:3]) and key in records["scene_robot"].get("frames", {})
             and all(p.exists() for p in _image_paths(scene_dir, im_id, sensor).values()))
+
+
+def complete_frames(scene_dir: Path, records: dict[str, dict] | None = None) -> list[int]:
+    """Sorted ids of the scene's complete frames (half-written ones are left out); [] for none."""
+    scene_dir = Path(scene_dir)
+    records = _load_records(scene_dir) if records is None else records
+    return sorted(int(k) for k in records["scene_robot"].get("frames", {}) if _complete(scene_dir, records, int(k)))
 
 
 def _bbox(mask: np.ndarray) -> list[int]:
@@ -110,6 +135,59 @@ def gt_info(mask: np.ndarray, mask_visib: np.ndarray, depth: np.ndarray) -> dict
     return {"bbox_obj": _bbox(mask), "bbox_visib": _bbox(mask_visib), "px_count_all": px_all,
             "px_count_valid": int((mask & (np.asarray(depth) > 0)).sum()), "px_count_visib": px_visib,
             "visib_fract": px_visib / px_all if px_all else 0.0}
+
+
+def _rle(mask: np.ndarray) -> dict:
+    """COCO's uncompressed RLE (column-major run lengths, starting with a background run), the form
+    bop_toolkit's calc_gt_coco.py and BlenderProc's BOP writer store; pycocotools reads it (frPyObjects)."""
+    flat = np.asarray(mask, dtype=bool).ravel(order="F")
+    edges = np.flatnonzero(flat[1:] != flat[:-1]) + 1
+    runs = np.diff(np.concatenate(([0], edges, [flat.size]))).tolist()
+    return {"counts": ([0] if flat[0] else []) + runs, "size": list(mask.shape)}
+
+
+def _coco_record(im_id: int, obj_id: int, mask: np.ndarray, mask_visib: np.ndarray) -> dict:
+    """One frame of scene_gt_coco.json as calc_gt_coco.py makes it: the visible mask as RLE, the amodal box
+    of the full mask (COCO's w = x_max - x_min + 1), `ignore` below 10 % visible; no annotation (None)
+    when either mask is empty. The annotation id is given when the scene is written out."""
+    mask, mask_visib = np.asarray(mask, dtype=bool), np.asarray(mask_visib, dtype=bool)
+    height, width = mask.shape
+    image = {"id": im_id, "file_name": f"rgb/{im_id:06d}.png", "width": width, "height": height}
+    if not mask.any() or not mask_visib.any():
+        return {"image": image, "annotation": None}
+    x, y, w, h = _bbox(mask)
+    area = int(mask_visib.sum())
+    return {"image": image, "annotation": {
+        "image_id": im_id, "category_id": obj_id, "iscrowd": 0, "area": area, "bbox": [x, y, w + 1, h + 1],
+        "segmentation": _rle(mask_visib), "width": width, "height": height,
+        "ignore": area / int(mask.sum()) < MIN_VISIB_FRACT}}
+
+
+def _coco_json(records: dict[int, dict], obj_ids: list[int]) -> dict:
+    """scene_gt_coco.json from per-frame records: images in frame order, annotation ids 1, 2, ... and a
+    category per object of the data set, as calc_gt_coco.py writes them."""
+    frames = [records[i] for i in sorted(records)]
+    annotations = [{"id": n, **a} for n, a in enumerate((f["annotation"] for f in frames if f["annotation"]), 1)]
+    return {"info": {"description": "syneepose"}, "licenses": [],
+            "categories": [{"id": i, "name": str(i), "supercategory": "syneepose"} for i in obj_ids],
+            "images": [f["image"] for f in frames], "annotations": annotations}
+
+
+def _load_coco(scene_dir: Path, records: dict[str, dict]) -> dict[int, dict]:
+    """The scene's COCO records by frame; complete frames without one (a scene written before
+    scene_gt_coco.json existed) get theirs from the mask PNGs, so a resumed scene lists every frame."""
+    path, coco = scene_dir / "scene_gt_coco.json", {}
+    if path.exists():
+        content = json.loads(path.read_text())
+        annotations = {a["image_id"]: {k: v for k, v in a.items() if k != "id"} for a in content["annotations"]}
+        coco = {im["id"]: {"image": im, "annotation": annotations.get(im["id"])} for im in content["images"]}
+    for key in records["scene_robot"].get("frames", {}):
+        im_id = int(key)
+        if im_id not in coco and _complete(scene_dir, records, im_id):
+            paths = _image_paths(scene_dir, im_id)
+            coco[im_id] = _coco_record(im_id, records["scene_gt"][key][GT_ID]["obj_id"],
+                                      read_png(paths["mask"]) > 127, read_png(paths["mask_visib"]) > 127)
+    return coco
 
 
 def _depth_png(frame: Frame, depth_scale: float) -> np.ndarray:
@@ -154,6 +232,8 @@ class SceneWriter:
             self._records["scene_robot"]["marker"] = meta.marker
         if meta.depth_sensor is not None:
             self._records["scene_robot"]["depth_sensor"] = meta.depth_sensor
+        self._coco = _load_coco(self.scene_dir, self._records)
+        self._obj_ids = sorted(ee.obj_id for ee in load_catalog().end_effectors.values())
         for path in _image_paths(self.scene_dir, 0, meta.depth_sensor).values():
             path.parent.mkdir(parents=True, exist_ok=True)
 
@@ -194,17 +274,55 @@ class SceneWriter:
         records["scene_robot"]["frames"][key] = {
             "joint_positions": _floats(frame.joint_positions),
             "T_base_ee": np.asarray(frame.T_base_ee, dtype=float).tolist()}
-        for name in _JSONS:
-            text = json.dumps(records[name], indent=2, sort_keys=True)
-            write_atomic(self.scene_dir / f"{name}.json", text.encode())
+        self._coco[frame.im_id] = _coco_record(frame.im_id, meta.obj_id, frame.mask, frame.mask_visib)
+        for name in _JSONS[:3]:
+            write_json(self.scene_dir / f"{name}.json", records[name])
+        write_json(self.scene_dir / "scene_gt_coco.json", _coco_json(self._coco, self._obj_ids), indent=None)
+        write_json(self.scene_dir / "scene_robot.json", records["scene_robot"])
+
+
+def split_name(root: Path) -> str:
+    """The split a data set was written to, from its dataset_info.json; "train" for data sets (and
+    folders without one) from before renders wrote the BOP `test` split."""
+    info = Path(root) / "dataset_info.json"
+    return json.loads(info.read_text()).get("split", "train") if info.is_file() else "train"
+
+
+def split_dir(root: Path) -> Path:
+    """`<root>/<split>`: the folder holding the data set's scenes."""
+    return Path(root) / split_name(root)
 
 
 def scene_dirs(split_dir: Path) -> dict[int, Path]:
-    """The scene folders of a split (`<root>/train`) by scene id; empty when the split has none."""
+    """The scene folders of a split (`<root>/test`) by scene id; empty when the split has none."""
     split_dir = Path(split_dir)
     if not split_dir.is_dir():
         return {}
     return {int(p.name): p for p in sorted(split_dir.iterdir()) if p.is_dir() and p.name.isdigit()}
+
+
+def write_root_files(root: Path, K: np.ndarray, width: int, height: int, depth_scale: float = DEPTH_SCALE) -> None:
+    """The BOP root files over every complete frame of every scene in the split, whoever wrote it:
+    camera.json (the nominal camera `K`; per-frame intrinsics stay in scene_camera.json, as BOP says),
+    test_targets_bop19.json (per frame, the objects at least 10 % visible, as enumerate_test_targets.py
+    counts them) and test_targets_bop24.json (every frame)."""
+    root = Path(root)
+    K = np.asarray(K, dtype=float)
+    write_json(root / "camera.json", {"cx": K[0, 2], "cy": K[1, 2], "depth_scale": float(depth_scale),
+                                      "fx": K[0, 0], "fy": K[1, 1], "height": int(height), "width": int(width)})
+    bop19, bop24 = [], []
+    for scene_id, scene_dir in scene_dirs(split_dir(root)).items():
+        records = _load_records(scene_dir)
+        for im_id in complete_frames(scene_dir, records):
+            key, counts = str(im_id), {}
+            for gt, info in zip(records["scene_gt"][key], records["scene_gt_info"][key]):
+                if info["visib_fract"] >= MIN_VISIB_FRACT:
+                    counts[gt["obj_id"]] = counts.get(gt["obj_id"], 0) + 1
+            bop19 += [{"im_id": im_id, "inst_count": n, "obj_id": obj_id, "scene_id": scene_id}
+                      for obj_id, n in sorted(counts.items())]
+            bop24.append({"im_id": im_id, "scene_id": scene_id})
+    for name, targets in (("test_targets_bop19.json", bop19), ("test_targets_bop24.json", bop24)):
+        write_atomic(root / name, ("[\n" + ",\n".join(f"  {json.dumps(t)}" for t in targets) + "\n]").encode())
 
 
 def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
@@ -212,7 +330,7 @@ def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
     scene_dir = Path(scene_dir)
     records = _load_records(scene_dir)
     robot = records["scene_robot"]
-    im_ids = sorted(int(k) for k in robot.get("frames", {}) if _complete(scene_dir, records, int(k)))
+    im_ids = complete_frames(scene_dir, records)
     if not im_ids:
         raise UserError(f"{scene_dir}: no complete frame (scene_robot.json and BOP files); write the scene first")
     first = str(im_ids[0])

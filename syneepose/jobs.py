@@ -18,13 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
-from syneepose import __version__, paths
+from syneepose import __version__, bop, paths
 from syneepose.errors import UserError
 from syneepose.robots.catalog import load_catalog
 from syneepose.transforms import inv_T
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
-SPLIT = "train"
+# BOP methods (SAM-6D, FoundationPose, MegaPose) and bop_toolkit's eval scripts read `test` + test_targets.
+SPLIT = "test"
+NAME = "syneepose"  # the BOP data set name of result files: METHOD_syneepose-test.csv
 PRESET_KEYS = {"name", "segments", "frames", "resolution", "samples", "render", "camera", "motion", "lights",
                "world", "backdrop", "distractors", "templates", "marker"}
 
@@ -61,7 +63,8 @@ class Job:
 
     @property
     def scene_dir(self) -> Path:
-        return Path(self.out) / SPLIT / f"{self.scene_id:06d}"
+        """In the split that dataset_info.json (written before any job runs) names, not this process's SPLIT."""
+        return bop.split_dir(Path(self.out)) / f"{self.scene_id:06d}"
 
 
 def parse_shard(text: str | None) -> tuple[int, int]:
@@ -194,14 +197,17 @@ def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: li
     if info_path.is_file():
         info = json.loads(info_path.read_text())
     first = asdict(jobs[0]) if jobs else {}
+    if info.get("split", SPLIT) != SPLIT and info.get("configurations"):
+        raise UserError(f"{out} holds a data set in {info['split']}/ (dataset_info.json), renders now write "
+                        f"{SPLIT}/; render into another --out (a data set never mixes splits)")
     if info.get("depth", "exact") != first.get("depth", "exact") and info.get("configurations"):
         raise UserError(f"{out} was rendered with --depth {info.get('depth', 'exact')}, not "
                         f"{first.get('depth', 'exact')}; render into another folder (a data set never mixes depth kinds)")
     info.update({
-        "preset": preset_name, "seed": first.get("seed"), "frames_per_segment": first.get("frames"),
+        "name": NAME, "preset": preset_name, "seed": first.get("seed"), "frames_per_segment": first.get("frames"),
         "resolution": [first.get("width"), first.get("height")], "samples": first.get("samples"),
         "configurations": sorted(set(info.get("configurations", [])) | set(configs)),
-        "split": SPLIT, "depth_scale": 0.1, "depth": first.get("depth", "exact"),
+        "split": SPLIT, "depth_scale": bop.DEPTH_SCALE, "depth": first.get("depth", "exact"),
         "depth_dirs": {"depth": "exact" if first.get("depth", "exact") == "exact" else "stereo sensor",
                        **({"depth_gt": "exact"} if first.get("depth", "exact") != "exact" else {})},
         "versions": {"syneepose": __version__, "bpy": version("bpy")},
@@ -213,11 +219,19 @@ def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: li
     tmp = info_path.with_name(f".{info_path.name}.tmp{os.getpid()}")
     tmp.write_text(json.dumps(info, indent=2, sort_keys=True))
     os.replace(tmp, info_path)
-    models = out / "models"
-    if not models.is_dir():
-        staging = out / f".models.tmp{os.getpid()}"
-        shutil.copytree(paths.models_dir(assets), staging, ignore=shutil.ignore_patterns(".*"))
-        os.replace(staging, models)
+    # models_eval/ (BOP's resampled evaluation models) is optional until the assets build makes it.
+    for name, source in (("models", paths.models_dir(assets)), ("models_eval", paths.models_eval_dir(assets))):
+        if not (out / name).is_dir() and (name == "models" or source.is_dir()):
+            staging = out / f".{name}.tmp{os.getpid()}"
+            shutil.copytree(source, staging, ignore=shutil.ignore_patterns(".*"))
+            os.replace(staging, out / name)
+
+
+def write_root_files(out: Path, preset: dict, width: int, height: int) -> None:
+    """camera.json and the test targets over every scene now in `out` (see bop.write_root_files)."""
+    from syneepose.scene.sample import nominal_intrinsics
+
+    bop.write_root_files(out, nominal_intrinsics(preset, width, height), width, height)
 
 
 def run_local(fn, jobs: list, workers: int, progress) -> None:

@@ -7,7 +7,6 @@ visible fraction). The template sheet of an end-effector shows in-plane rotation
 
 from __future__ import annotations
 
-import json
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from syneepose.bop import read_frame, read_scene, scene_dirs, write_png
+from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir, write_png
 from syneepose.errors import UserError
 from syneepose.templates import read_index, read_template
 
@@ -103,18 +102,16 @@ def frame_panel(scene_dir: Path, scene_id: int, im_id: int, width: int) -> np.nd
 def scenes_by_config(root: Path) -> dict[str, list[tuple[int, Path, list[int]]]]:
     """(scene id, folder, frame ids) of every scene of the data set's split, grouped by configuration."""
     root = Path(root)
-    info_path = root / "dataset_info.json"
-    split = json.loads(info_path.read_text()).get("split", "train") if info_path.is_file() else "train"
-    split_dir = root / split
-    if not split_dir.is_dir():
-        raise UserError(f"{root}: no {split}/ folder; give the root of a data set written by "
+    split = split_dir(root)
+    if not split.is_dir():
+        raise UserError(f"{root}: no {split.name}/ folder; give the root of a data set written by "
                         "python -m syneepose render --out DIR")
     groups = defaultdict(list)
-    for scene_id, scene_dir in scene_dirs(split_dir).items():
+    for scene_id, scene_dir in scene_dirs(split).items():
         meta, im_ids = read_scene(scene_dir)
         groups[f"{meta.arm}+{meta.end_effector}"].append((scene_id, scene_dir, im_ids))
     if not groups:
-        raise UserError(f"{split_dir}: no scenes; render some with python -m syneepose render --out {root}")
+        raise UserError(f"{split}: no scenes; render some with python -m syneepose render --out {root}")
     return dict(sorted(groups.items()))
 
 

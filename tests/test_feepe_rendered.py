@@ -12,13 +12,13 @@ from feepe.backbones import DEFAULT, get_backbone
 from feepe.estimator import Estimator, FeepeOptions
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
-from syneepose.bop import read_frame, read_scene
+from syneepose.bop import read_frame, read_scene, split_dir
 from syneepose.errors import UserError
 from syneepose.transforms import rotation_angle
 
 
 def _scene(root, ee):
-    for scene in sorted((root / "train").iterdir()):
+    for scene in sorted(split_dir(root).iterdir()):
         meta, ids = read_scene(scene)
         if meta.end_effector == ee:
             return meta, [read_frame(scene, i) for i in ids]

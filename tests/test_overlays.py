@@ -6,13 +6,13 @@ import cv2
 import numpy as np
 
 from eval.overlays import EST_COLOUR, contour_points, draw_pose, load_mesh, silhouette, zoom
-from syneepose.bop import read_frame, read_scene
+from syneepose.bop import read_frame, read_scene, split_dir
 from syneepose.show import GT_COLOUR
 from syneepose.transforms import make_T
 
 
 def _frames(root):
-    for scene_dir in sorted((root / "train").iterdir()):
+    for scene_dir in sorted(split_dir(root).iterdir()):
         meta, im_ids = read_scene(scene_dir)
         mesh = load_mesh(root / "models" / f"obj_{meta.obj_id:06d}.ply")
         for im_id in im_ids:

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from syneepose.bop import read_frame, read_scene
+from syneepose.bop import read_frame, read_scene, split_dir
 from syneepose.robots.robot import load_robot
 from syneepose.transforms import transform_points
 
@@ -40,7 +40,7 @@ def rendered(tmp_path_factory, assets):
 
 
 def _scenes(root):
-    return sorted(p for p in (root / "train").iterdir() if p.is_dir())
+    return sorted(p for p in split_dir(root).iterdir() if p.is_dir())
 
 
 def _raycast(mesh_m, T_cam_model, K, width, height):
@@ -57,11 +57,15 @@ def _raycast(mesh_m, T_cam_model, K, width, height):
 def test_layout(rendered):
     info = json.loads((rendered / "dataset_info.json").read_text())
     assert info["preset"] == "mini" and set(CONFIGS) <= set(info["configurations"])
+    assert (info["name"], info["split"]) == ("syneepose", "test")
     assert (rendered / "models" / "models_info.json").is_file()
+    bop24 = json.loads((rendered / "test_targets_bop24.json").read_text())
+    assert json.loads((rendered / "camera.json").read_text())["width"] == 64
     scenes = _scenes(rendered)
-    assert len(scenes) == len(CONFIGS)
+    assert len(scenes) == len(CONFIGS) and len(bop24) == 2 * len(CONFIGS)
     for scene in scenes:
-        for name in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_robot.json"):
+        for name in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_gt_coco.json",
+                     "scene_robot.json"):
             assert (scene / name).is_file()
         assert len(list((scene / "rgb").glob("*.png"))) == 2
 
@@ -94,8 +98,8 @@ def test_same_seed_same_data(rendered, tmp_path):
     again = tmp_path / "again"
     proc = _render(again, "--frames", "2", "--robots", CONFIGS[1])
     assert proc.returncode == 0, proc.stderr[-2000:]
-    a = next(s for s in _scenes(rendered) if (again / "train" / s.name).is_dir())
-    b = again / "train" / a.name
+    a = next(s for s in _scenes(rendered) if (split_dir(again) / s.name).is_dir())
+    b = split_dir(again) / a.name
     for name in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_robot.json"):
         assert (a / name).read_text() == (b / name).read_text(), name
     for im_id in (0, 1):
@@ -112,7 +116,7 @@ def test_killed_render_resumes_to_the_same_result(rendered, tmp_path):
     gt = None
     deadline = time.time() + 120
     while time.time() < deadline:
-        found = list(out.glob("train/*/scene_gt.json"))
+        found = list(out.glob("test/*/scene_gt.json"))
         if found and len(json.loads(found[0].read_text() or "{}")) >= 1:
             gt = found[0]
             break
@@ -125,8 +129,10 @@ def test_killed_render_resumes_to_the_same_result(rendered, tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     ref = tmp_path / "ref"
     assert subprocess.run([*cmd[:7], str(ref), *cmd[8:]], capture_output=True).returncode == 0
-    for name in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_robot.json"):
-        assert (gt.parent / name).read_text() == (ref / "train" / gt.parent.name / name).read_text()
+    for name in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_gt_coco.json", "scene_robot.json"):
+        assert (gt.parent / name).read_text() == (split_dir(ref) / gt.parent.name / name).read_text()
+    for name in ("camera.json", "test_targets_bop19.json", "test_targets_bop24.json"):
+        assert (out / name).read_text() == (ref / name).read_text()
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]
 
 
@@ -186,7 +192,7 @@ def test_ray_executor_matches_local(rendered, tmp_path):
     proc = _render(out, "--frames", "2", "--robots", CONFIGS[1], "--executor", "ray")
     assert proc.returncode == 0, proc.stderr[-2000:]
     [scene] = _scenes(out)
-    assert (scene / "scene_gt.json").read_text() == (rendered / "train" / scene.name / "scene_gt.json").read_text()
+    assert (scene / "scene_gt.json").read_text() == (split_dir(rendered) / scene.name / "scene_gt.json").read_text()
 
 
 def test_gpu_request_without_gpu_is_one_clear_line(tmp_path, assets):

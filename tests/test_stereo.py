@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from syneepose.bop import read_frame, read_scene
+from syneepose.bop import read_frame, read_scene, split_dir
 from syneepose.stereo import load_profile, refine_disparity, stereo_depth, to_rgb_camera
 from syneepose.transforms import make_T
 
@@ -87,7 +87,7 @@ def test_depth_stereo_layout_and_profile(tmp_path, assets):
     assert proc.returncode == 0, proc.stderr[-2000:]
     info = json.loads((tmp_path / "dataset_info.json").read_text())
     assert info["depth"] == "stereo" and info["sensor"]["name"] == "d435" and info["depth_dirs"]["depth_gt"] == "exact"
-    [scene] = sorted((tmp_path / "train").iterdir())
+    [scene] = sorted(split_dir(tmp_path).iterdir())
     meta, ids = read_scene(scene)
     frame = read_frame(scene, ids[0])
     assert meta.depth_sensor["mode"] == "stereo" and frame.depth_gt is not None and frame.ir_left is None

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from eval.handeye import BoardDetector
-from syneepose.bop import read_frame, read_scene
+from syneepose.bop import read_frame, read_scene, split_dir
 from syneepose.scene.marker import MarkerBoard
 from syneepose.transforms import rotation_angle
 
@@ -40,7 +40,7 @@ def twins(tmp_path_factory, assets):
 
 
 def test_rendered_board_is_detected_at_its_ground_truth_pose(twins):
-    [scene] = sorted((twins / "marker" / "train").iterdir())
+    [scene] = sorted(split_dir(twins / "marker").iterdir())
     meta, ids = read_scene(scene)
     board = MarkerBoard.from_json(meta.marker)
     detector = BoardDetector(board)
@@ -54,7 +54,7 @@ def test_rendered_board_is_detected_at_its_ground_truth_pose(twins):
     assert errors, f"board found in none of {len(ids)} frames"
     assert max(e[0] for e in errors) <= 0.002 and np.rad2deg(max(e[1] for e in errors)) < 1.0
     # the board is not part of the end-effector's masks
-    plain_meta, _ = read_scene(twins / "plain" / "train" / scene.name)
+    plain_meta, _ = read_scene(split_dir(twins / "plain") / scene.name)
     np.testing.assert_allclose(plain_meta.T_cam_base, meta.T_cam_base)
     assert plain_meta.marker is None
 

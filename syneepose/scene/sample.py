@@ -45,14 +45,23 @@ def kelvin_to_rgb(kelvin: float) -> tuple[float, float, float]:
     return tuple(float(c) for c in rgb / rgb.max())
 
 
+def _K(hfov_deg: float, width: int, height: int, dx: float = 0.0, dy: float = 0.0) -> np.ndarray:
+    f = width / 2 / np.tan(np.deg2rad(hfov_deg) / 2)
+    return np.array([[f, 0.0, (width - 1) / 2 + dx * width], [0.0, f, (height - 1) / 2 + dy * height], [0.0, 0.0, 1.0]])
+
+
 def intrinsics(rng, preset: dict, width: int, height: int) -> np.ndarray:
     """Square pixels; focal length from a horizontal field of view; principal point jittered."""
-    fov = np.deg2rad(uniform(rng, preset["camera"]["hfov_deg"]))
-    f = width / 2 / np.tan(fov / 2)
+    fov = uniform(rng, preset["camera"]["hfov_deg"])
     jitter = preset["camera"].get("principal_jitter", 0.0)
-    cx = (width - 1) / 2 + rng.uniform(-jitter, jitter) * width
-    cy = (height - 1) / 2 + rng.uniform(-jitter, jitter) * height
-    return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    dx, dy = rng.uniform(-jitter, jitter), rng.uniform(-jitter, jitter)
+    return _K(fov, width, height, dx, dy)
+
+
+def nominal_intrinsics(preset: dict, width: int, height: int) -> np.ndarray:
+    """The camera the sampler varies around (mid-range field of view, centred principal point): BOP's
+    camera.json for a data set whose K differs per segment."""
+    return _K(float(np.mean(preset["camera"]["hfov_deg"])), width, height)
 
 
 def random_surface(rng, preset: dict) -> Surface:
