@@ -27,14 +27,15 @@ dataset: assets
 	$(PY) -m syneepose templates --preset mini --out $(DATA)
 
 # The paper's tables on $(DATA): the ablation variants, depth alignment, and the K_r / K_f sweeps.
+# A failing run fails the target (`|| exit 1`: a shell loop alone reports only its last command).
 RESULTS ?= results/mini
 RUN := $(PY) -m eval.run --method feepe --dataset $(DATA)
 
 tables: dataset
-	for v in A B C D; do $(RUN) --variant $$v --out $(RESULTS)/feepe-$$v; done
+	for v in A B C D; do $(RUN) --variant $$v --out $(RESULTS)/feepe-$$v || exit 1; done
 	$(RUN) --icp --out $(RESULTS)/feepe-D-icp
-	for k in 1 3 10; do $(RUN) --k-r $$k --out $(RESULTS)/feepe-kr$$k; done
-	for k in 2 4 16; do $(RUN) --k-f $$k --out $(RESULTS)/feepe-kf$$k; done
+	for k in 1 3 10; do $(RUN) --k-r $$k --out $(RESULTS)/feepe-kr$$k || exit 1; done
+	for k in 2 4 16; do $(RUN) --k-f $$k --out $(RESULTS)/feepe-kf$$k || exit 1; done
 	$(PY) -m eval.run --method ppf --dataset $(DATA) --out $(RESULTS)/ppf
 	$(PY) -m eval.tables $(RESULTS)/feepe-* $(RESULTS)/ppf --out $(RESULTS)/tables
 	$(PY) -m eval.report $(RESULTS)/feepe-* $(RESULTS)/ppf --out $(RESULTS)/report

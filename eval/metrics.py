@@ -1,4 +1,5 @@
-"""Pose and calibration errors (YCB-Video / DREAM convention), vectorised over frames.
+"""Pose and calibration errors, vectorised over frames: ADD and ADD-S as BOP's `add` / `adi`
+(bop_toolkit_lib.pose_error; Hinterstoisser et al., ACCV 2012), AUC as YCB-Video (Xiang et al., RSS 2018).
 
 Poses are (n, 4, 4) arrays in metres; a frame without an estimate holds NaN and scores an infinite
 ADD / ADD-S (a failure) and NaN for the other errors.
@@ -30,24 +31,33 @@ def _valid(T: np.ndarray) -> np.ndarray:
     return np.isfinite(T).all(axis=(1, 2))
 
 
-def add(T_est, T_gt, points: np.ndarray) -> np.ndarray:
-    """ADD (m): mean distance between the model points under the two poses."""
+def _mean(dist: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    """Mean over points (last axis), or the weighted mean when the points stand for cells of the model."""
+    return dist.mean(axis=-1) if weights is None else dist @ weights
+
+
+def add(T_est, T_gt, points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """ADD (m): mean distance between the model points under the two poses (weighted by `weights`, which sum
+    to 1, when the points are a stratified subset of the model: `eval.model_points.query_subset`)."""
     T_est, T_gt = _stack(T_est), _stack(T_gt)
     out = np.full(len(T_gt), np.inf)
     ok = np.flatnonzero(_valid(T_est))
     for chunk in np.array_split(ok, max(1, -(-len(ok) // CHUNK))):
         D = T_est[chunk] - T_gt[chunk]  # (R_e - R_g) p + (t_e - t_g), without posing both copies
         diff = np.einsum("nij,pj->npi", D[:, :3, :3], points) + D[:, None, :3, 3]
-        out[chunk] = np.linalg.norm(diff, axis=-1).mean(axis=1)
+        out[chunk] = _mean(np.linalg.norm(diff, axis=-1), weights)
     return out
 
 
-def adds(T_est, T_gt, points: np.ndarray, tree: cKDTree | None = None, workers: int = -1) -> np.ndarray:
-    """ADD-S (m): mean over GT-posed points of the distance to the nearest estimate-posed point.
+def adds(T_est, T_gt, points: np.ndarray, tree: cKDTree | None = None, weights: np.ndarray | None = None,
+         workers: int = -1) -> np.ndarray:
+    """ADD-S (m): mean over GT-posed `points` of the distance to the nearest estimate-posed model vertex.
 
-    Distances are rigid-invariant, so the GT-posed points are moved into the estimate's model frame,
-    inv(T_est) @ T_gt = I + R_est^T (T_gt - T_est), and one tree of the model points (`model_tree(points)`)
-    serves every frame. Written as I + a difference, a perfect estimate scores exactly 0.
+    The nearest neighbour is searched in `tree`, which must hold the whole evaluation model (BOP's `adi`
+    searches all vertices); `points` may be a weighted subset of those vertices (the query side only). Distances are
+    rigid-invariant, so the GT-posed points are moved into the estimate's model frame,
+    inv(T_est) @ T_gt = I + R_est^T (T_gt - T_est), and one tree serves every frame. Written as I + a
+    difference, a perfect estimate scores exactly 0.
     """
     T_est, T_gt = _stack(T_est), _stack(T_gt)
     tree = tree if tree is not None else model_tree(points)
@@ -57,7 +67,7 @@ def adds(T_est, T_gt, points: np.ndarray, tree: cKDTree | None = None, workers: 
         Rt, D = np.swapaxes(T_est[chunk, :3, :3], 1, 2), T_gt[chunk] - T_est[chunk]
         query = points + np.einsum("nij,pj->npi", Rt @ D[:, :3, :3], points) + (Rt @ D[:, :3, 3:])[:, None, :, 0]
         dist, _ = tree.query(query.reshape(-1, 3), workers=workers)
-        out[chunk] = dist.reshape(len(chunk), len(points)).mean(axis=1)
+        out[chunk] = _mean(dist.reshape(len(chunk), len(points)), weights)
     return out
 
 

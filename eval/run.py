@@ -1,8 +1,9 @@
 """`python -m eval.run`: run a method over a BOP data set, frame by frame in order, and score it.
 
-Writes <out>/results.csv (BOP), <out>/errors.csv (one row per frame) and <out>/summary.json. Each
-scene's rows go to <out>/scenes/ as soon as the scene is done, so a stopped run resumes with the
-first scene that is not complete.
+Writes <out>/results.csv (BOP; copied as <method>_<dataset>-<split>.csv, the name the BOP toolkit's
+scripts parse), <out>/errors.csv (one row per frame) and <out>/summary.json. Each scene's rows go to
+<out>/scenes/ as soon as the scene is done, with a fingerprint of every file it was computed from; a rerun
+resumes with the scenes that are missing and scores again every scene whose inputs changed.
 """
 
 from __future__ import annotations
@@ -25,8 +26,9 @@ from eval.bop_results import BopResult, read_results, write_results
 from syneepose.cli import run_command
 from eval.methods import get_method
 from eval.methods.base import Estimate, Observation
-from eval.metrics import add, adds, model_tree, rotation_error_deg, translation_error_mm
-from eval.model_points import MAX_POINTS, SEED, ModelPoints, load_model_points
+from eval.fingerprint import differences, read_fingerprint, scene_fingerprint
+from eval.metrics import add, adds, rotation_error_deg, translation_error_mm
+from eval.model_points import MAX_QUERY, MODELS_EVAL, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
 from syneepose.bop import SceneMeta, read_frame, read_png, read_scene, scene_dirs, write_atomic
@@ -117,10 +119,11 @@ def _pose(T) -> np.ndarray:
 
 
 def score_scene(scene: Scene, T_gt: np.ndarray, estimates: list[Estimate], wall_s: list[float],
-                model: ModelPoints, tree) -> list[FrameErrors]:
+                model: EvalModel) -> list[FrameErrors]:
     T_est = np.stack([_pose(e.T_cam_ee) for e in estimates])
     T_base = np.stack([_pose(e.T_cam_base) for e in estimates])
-    add_m, adds_m = add(T_est, T_gt, model.points), adds(T_est, T_gt, model.points, tree)
+    add_m = add(T_est, T_gt, model.query, model.weights)
+    adds_m = adds(T_est, T_gt, model.query, model.tree, model.weights)
     rot, trans = rotation_error_deg(T_est, T_gt), translation_error_mm(T_est, T_gt)
     T_cam_base = scene.meta.T_cam_base
     calib_trans, calib_rot = translation_error_mm(T_base, T_cam_base), rotation_error_deg(T_base, T_cam_base)
@@ -133,7 +136,7 @@ def score_scene(scene: Scene, T_gt: np.ndarray, estimates: list[Estimate], wall_
             for i, (im_id, e) in enumerate(zip(scene.im_ids, estimates))]
 
 
-def run_scene(method, scene: Scene, depth_dir: str, model: ModelPoints, tree, bar) -> tuple[list, list]:
+def run_scene(method, scene: Scene, depth_dir: str, model: EvalModel, bar) -> tuple[list, list]:
     """The method over one scene in frame order; returns its BOP results and its error rows."""
     method.start_scene(dataclasses.replace(scene.meta, T_cam_base=NO_POSE.copy()), scene.path)
     cameras = json.loads((scene.path / "scene_camera.json").read_text())
@@ -147,18 +150,30 @@ def run_scene(method, scene: Scene, depth_dir: str, model: ModelPoints, tree, ba
         bar.update()
     results = [BopResult(scene.scene_id, im_id, scene.meta.obj_id, e.score, e.T_cam_ee, e.time_s)
                for im_id, e in zip(scene.im_ids, estimates) if e.T_cam_ee is not None]
-    return results, score_scene(scene, np.stack(T_gt), estimates, wall_s, model, tree)
+    return results, score_scene(scene, np.stack(T_gt), estimates, wall_s, model)
 
 
-def _scene_files(out: Path, scene_id: int) -> tuple[Path, Path]:
-    return out / "scenes" / f"{scene_id:06d}.results.csv", out / "scenes" / f"{scene_id:06d}.errors.csv"
+def _scene_files(out: Path, scene_id: int) -> tuple[Path, Path, Path]:
+    """Results, errors and fingerprint of one scene, written in that order."""
+    stem = out / "scenes" / f"{scene_id:06d}"
+    return stem.with_suffix(".results.csv"), stem.with_suffix(".errors.csv"), stem.with_suffix(".fingerprint.json")
 
 
-def _done(out: Path, scene: Scene) -> bool:
-    """Complete = both files written (errors last) with a row for every frame the scene has now."""
-    results_csv, errors_csv = _scene_files(out, scene.scene_id)
-    return (results_csv.is_file() and errors_csv.is_file()
-            and [r.im_id for r in read_errors(errors_csv)] == scene.im_ids)
+def _method_inputs(method, scene: Scene) -> list[Path]:
+    """The files a method reads besides the frames (e.g. FEEPE's template set), if it says."""
+    inputs = getattr(method, "inputs", None)
+    return [Path(p) for p in inputs(scene.meta, scene.path)] if inputs else []
+
+
+def _stale(out: Path, scene: Scene, fingerprint: dict) -> list[str] | None:
+    """None when the scene's stored rows were computed from exactly these inputs; else what changed."""
+    results_csv, errors_csv, fp_path = _scene_files(out, scene.scene_id)
+    if not (results_csv.is_file() and errors_csv.is_file()):
+        return []
+    before = read_fingerprint(fp_path)
+    if before is None:
+        return ["no fingerprint of its inputs (scored by an older version)"]
+    return differences(before, fingerprint) or None
 
 
 def _claim(out: Path, identity: dict) -> None:
@@ -210,21 +225,29 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     split = info.get("split", "train")
     selected = find_scenes(dataset / split, scenes, robots)
     identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir,
-                "max_points": MAX_POINTS}
+                "metric": {"models": MODELS_EVAL, "max_query": MAX_QUERY, "query": "grid cells"}}
+    models = {obj_id: load_eval_model(dataset, obj_id) for obj_id in sorted({s.meta.obj_id for s in selected})}
     _claim(out, identity)
-    models = {obj_id: load_model_points(dataset / "models", obj_id)
-              for obj_id in sorted({s.meta.obj_id for s in selected})}
-    trees = {obj_id: model_tree(m.points) for obj_id, m in models.items()}
-    todo = [s for s in selected if not _done(out, s)]
+    fingerprints = {s.scene_id: scene_fingerprint(s.path, s.im_ids, depth_dir, models[s.meta.obj_id].sha256,
+                                                  _method_inputs(method, s)) for s in selected}
+    todo = []
+    for scene in selected:
+        changed = _stale(out, scene, fingerprints[scene.scene_id])
+        if changed is not None:
+            todo.append(scene)
+        if changed:
+            print(f"eval: scene {scene.scene_id} is scored again: {'; '.join(changed)} changed since "
+                  "its last scoring", file=sys.stderr)
     bar = tqdm(total=sum(len(s.im_ids) for s in selected), unit="frame", desc=f"eval {method_name}",
                initial=sum(len(s.im_ids) for s in selected) - sum(len(s.im_ids) for s in todo))
     try:
         for scene in todo:
-            results, errors = run_scene(method, scene, depth_dir, models[scene.meta.obj_id],
-                                        trees[scene.meta.obj_id], bar)
-            results_csv, errors_csv = _scene_files(out, scene.scene_id)
+            results, errors = run_scene(method, scene, depth_dir, models[scene.meta.obj_id], bar)
+            results_csv, errors_csv, fp_path = _scene_files(out, scene.scene_id)
+            fp_path.unlink(missing_ok=True)
             write_results(results_csv, results)
             write_errors(errors_csv, errors)
+            write_atomic(fp_path, json.dumps(fingerprints[scene.scene_id], indent=1).encode())
     except BaseException:
         bar.leave = False
         raise
@@ -233,21 +256,25 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
 
     all_results, all_errors = [], []
     for scene in selected:
-        results_csv, errors_csv = _scene_files(out, scene.scene_id)
+        results_csv, errors_csv, _ = _scene_files(out, scene.scene_id)
         all_results.extend(sorted(read_results(results_csv).values(), key=lambda r: r.im_id))
         all_errors.extend(read_errors(errors_csv))
     write_results(out / "results.csv", all_results)
+    bop_name = f"{method_name.replace('_', '-')}_{info.get('name', 'syneepose')}-{split}.csv"
+    write_atomic(out / bop_name, (out / "results.csv").read_bytes())
     write_errors(out / "errors.csv", all_errors)
     summary = {
         "method": method_name, "options": opts, "backbone": opts.get("backbone"), "variant": opts.get("variant"),
         "dataset": {"path": str(dataset), "preset": info.get("preset"), "split": split,
                     "scenes": [s.scene_id for s in selected], "depth_dir": depth_dir},
+        "bop_results": bop_name,
         **summarise(all_errors),
         "model_points": {
-            str(obj_id): {"n_vertices": m.n_vertices, "n_unique": m.n_unique, "n_points": len(m.points),
-                          "subsampled": m.subsampled} for obj_id, m in models.items()},
-        "model_points_rule": (f"unique PLY vertices (mm -> m); models with more than {MAX_POINTS} are "
-                              f"subsampled with seed {SEED}, closed under their discrete symmetries"),
+            str(obj_id): {"n_vertices": len(m.vertices), "n_query": len(m.query), "subsampled": m.subsampled,
+                          "sha256": m.sha256} for obj_id, m in models.items()},
+        "model_points_rule": (f"every vertex of {MODELS_EVAL}/obj_XXXXXX.ply (mm -> m) is searched for the ADD-S "
+                              f"nearest neighbour; the means run over at most {MAX_QUERY} of them, one per cell of a "
+                              "cubic grid weighted by the cell's vertex count (an estimate of BOP's mean over all)"),
         "versions": _versions(),
         "git_commit": _git_commit(),
     }

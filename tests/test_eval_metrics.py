@@ -4,12 +4,13 @@ import json
 
 import numpy as np
 import pytest
-import trimesh
 from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 from scipy.spatial.transform import Rotation
 
 from eval.metrics import add, adds, auc, calibration_error, rotation_error_deg, translation_error_mm
-from eval.model_points import load_model_points
+from eval.model_points import MAX_QUERY, MODELS_EVAL, load_eval_model
+from syneepose.bop import read_frame, read_scene, split_dir
 from syneepose.transforms import axis_angle_to_R, make_T, transform_points
 
 NAN_POSE = np.full((4, 4), np.nan)
@@ -61,21 +62,80 @@ def test_adds_matches_a_tree_per_estimate_and_never_exceeds_add():
 
 
 def test_adds_vanishes_under_the_2f85_symmetry_while_add_does_not(assets):
-    models = assets / "models"
-    info = json.loads((models / "models_info.json").read_text())["2"]
+    """On every vertex of the evaluation model; the remeshed vertices are not themselves symmetric, so a
+    symmetric pose leaves ADD-S at the nearest-vertex distance (well under the vertex spacing)."""
+    model = load_eval_model(assets, 2, max_query=None)
+    info = json.loads((assets / MODELS_EVAL / "models_info.json").read_text())["2"]
     S = np.array(info["symmetries_discrete"][0]).reshape(4, 4)  # 180 deg about z, no translation
-    vertices = np.unique(np.asarray(trimesh.load(models / "obj_000002.ply", process=False).vertices), axis=0) / 1000
     rng = np.random.default_rng(2)
     T_gt = np.stack([_random_pose(rng) for _ in range(3)])
     T_est = T_gt @ S
     # A half turn about z moves (x, y, z) to (-x, -y, z): a distance of 2 |(x, y)|.
-    assert add(T_est, T_gt, vertices) == pytest.approx([2 * np.linalg.norm(vertices[:, :2], axis=1).mean()] * 3)
-    assert add(T_est, T_gt, vertices).min() > 0.05
-    assert adds(T_est, T_gt, vertices).max() < 1e-4
-    # The evaluator's subsample keeps the symmetry (a plain random one of 2000 points gives ~0.9 mm).
-    model = load_model_points(models, 2)
-    assert model.subsampled and len(model.points) <= 2000 and model.n_unique == len(vertices)
-    assert adds(T_est, T_gt, model.points).max() < 1e-4
+    radial = 2 * np.linalg.norm(model.vertices[:, :2], axis=1).mean()
+    assert add(T_est, T_gt, model.vertices) == pytest.approx([radial] * 3)
+    assert add(T_est, T_gt, model.vertices).min() > 0.05
+    assert adds(T_est, T_gt, model.vertices, model.tree).max() < 3e-4
+
+
+def _perturbed(frames_T: np.ndarray, per_frame: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Estimates as a good method makes them: a few mm and degrees off each ground-truth pose."""
+    T_gt = np.repeat(frames_T, per_frame, axis=0)
+    noise = np.tile(np.eye(4), (len(T_gt), 1, 1))
+    noise[:, :3, :3] = Rotation.from_rotvec(rng.normal(0.0, np.radians(2.0), (len(T_gt), 3))).as_matrix()
+    noise[:, :3, 3] = rng.normal(0.0, 0.003, (len(T_gt), 3))
+    return T_gt @ noise, T_gt
+
+
+def _rendered_gt(dataset) -> dict[int, np.ndarray]:
+    """obj_id -> the ground-truth poses of every frame of the rendered data set."""
+    poses = {}
+    for scene in sorted(split_dir(dataset).iterdir()):
+        meta, im_ids = read_scene(scene)
+        poses.setdefault(meta.obj_id, []).extend(read_frame(scene, i).T_cam_ee for i in im_ids)
+    return {obj_id: np.stack(T) for obj_id, T in poses.items()}
+
+
+def _brute_force(T_est, T_gt, vertices) -> tuple[np.ndarray, np.ndarray]:
+    """BOP's add / adi written plainly: all vertices posed twice, every pair of distances for ADD-S."""
+    add_m, adds_m = [], []
+    for Te, Tg in zip(T_est, T_gt):
+        est, gt = transform_points(Te, vertices), transform_points(Tg, vertices)
+        add_m.append(np.linalg.norm(est - gt, axis=1).mean())
+        adds_m.append(np.concatenate([cdist(block, est).min(axis=1) for block in np.array_split(gt, 40)]).mean())
+    return np.array(add_m), np.array(adds_m)
+
+
+def test_bop_metrics_exactly_on_a_rendered_scene(tiny_dataset):
+    """With every vertex as query, ADD and ADD-S equal the brute-force BOP definitions to 1e-6 m."""
+    rng = np.random.default_rng(3)
+    for obj_id, frames_T in _rendered_gt(tiny_dataset).items():
+        if obj_id != 2:  # the 2F-85 (64k vertices) keeps the all-pairs check near ten seconds
+            continue
+        model = load_eval_model(tiny_dataset, obj_id, max_query=None)
+        assert len(model.query) == len(model.vertices) == len(np.unique(model.vertices, axis=0))
+        T_est, T_gt = _perturbed(frames_T[:2], 1, rng)
+        want_add, want_adds = _brute_force(T_est, T_gt, model.vertices)
+        assert add(T_est, T_gt, model.query) == pytest.approx(want_add, abs=1e-6)
+        assert adds(T_est, T_gt, model.query, model.tree) == pytest.approx(want_adds, abs=1e-6)
+        assert (want_adds > 1e-4).all()  # the perturbation is large enough to be a check
+
+
+def test_query_subsample_keeps_the_auc_of_all_vertices(tiny_dataset):
+    """The evaluator's default (at most MAX_QUERY weighted query vertices, the whole model searched) against
+    every vertex: AUC of ADD and ADD-S at 1 and 2 cm within 0.1 points on perturbed rendered ground truth."""
+    rng = np.random.default_rng(4)
+    for obj_id, frames_T in _rendered_gt(tiny_dataset).items():
+        full = load_eval_model(tiny_dataset, obj_id, max_query=None)
+        sub = load_eval_model(tiny_dataset, obj_id)
+        assert sub.subsampled and 0.9 * MAX_QUERY < len(sub.query) <= MAX_QUERY  # a real subsample
+        assert sub.weights.sum() == pytest.approx(1.0) and set(map(tuple, sub.query)) <= set(map(tuple, full.vertices))
+        T_est, T_gt = _perturbed(frames_T, 40, rng)
+        for metric in (lambda m: add(T_est, T_gt, m.query, m.weights),
+                       lambda m: adds(T_est, T_gt, m.query, m.tree, m.weights)):
+            exact, estimate = metric(full), metric(sub)
+            for max_error in (0.01, 0.02):
+                assert abs(auc(estimate, max_error) - auc(exact, max_error)) < 0.1
+            assert 20 < auc(exact, 0.01) < 90  # errors spread over the curve, not all 0 or all beyond
 
 
 def test_auc_closed_forms():

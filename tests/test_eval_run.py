@@ -10,12 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 from scipy.spatial.transform import Rotation
 
 from eval import run
 from eval.bop_results import HEADER, read_results
 from eval.methods import register
 from eval.methods.base import Estimate
+from eval.model_points import MAX_QUERY
 from eval.records import read_errors
 from syneepose.bop import Frame, SceneMeta, SceneWriter, read_frame, write_png
 from syneepose.errors import UserError
@@ -27,16 +29,17 @@ SCENES = {0: ("ur5e", "robotiq_2f85", 2), 1: ("panda", "kinova_3f", 4)}
 REPO = Path(__file__).resolve().parents[1]
 
 
-def make_dataset(root: Path, models: Path) -> Path:
+def make_dataset(root: Path, assets: Path) -> Path:
     """Two scenes of four frames: random images, a known camera-to-base pose, T_cam_ee = T_cam_base T_base_ee."""
     rng = np.random.default_rng(0)
-    shutil.copytree(models, root / "models", ignore=shutil.ignore_patterns(".*"))
-    (root / "dataset_info.json").write_text(json.dumps({"preset": "synthetic", "split": "train"}))
+    for models in ("models", "models_eval"):
+        shutil.copytree(assets / models, root / models, ignore=shutil.ignore_patterns(".*"))
+    (root / "dataset_info.json").write_text(json.dumps({"preset": "synthetic", "split": "test", "name": "syneepose"}))
     for scene_id, (arm, ee, obj_id) in SCENES.items():
         T_cam_base = make_T(Rotation.from_euler("xyz", [-2.0, 0.1, 0.3 * scene_id]).as_matrix(), [0.1, 0.2, 1.5])
         meta = SceneMeta(obj_id=obj_id, arm=arm, end_effector=ee, joint_names=[f"j{i}" for i in range(6)],
                          T_cam_base=T_cam_base)
-        writer = SceneWriter(root / "train" / f"{scene_id:06d}", meta)
+        writer = SceneWriter(root / "test" / f"{scene_id:06d}", meta)
         for im_id in range(FRAMES):
             T_base_ee = make_T(Rotation.random(random_state=rng).as_matrix(), rng.uniform(-0.4, 0.4, 3) + [0, 0, 0.5])
             mask = np.zeros((H, W), bool)
@@ -53,7 +56,7 @@ def gt_csv(path: Path, dataset: Path, offset_mm=(0.0, 0.0, 0.0), drop=()) -> Pat
     back bit for bit; translated by `offset_mm` in the camera frame and without the frames `drop`."""
     lines = [HEADER]
     for scene_id in SCENES:
-        scene_gt = json.loads((dataset / "train" / f"{scene_id:06d}" / "scene_gt.json").read_text())
+        scene_gt = json.loads((dataset / "test" / f"{scene_id:06d}" / "scene_gt.json").read_text())
         for im_id, (gt,) in sorted(scene_gt.items(), key=lambda item: int(item[0])):
             if (scene_id, int(im_id)) not in drop:
                 t = np.add(gt["cam_t_m2c"], offset_mm)
@@ -65,7 +68,7 @@ def gt_csv(path: Path, dataset: Path, offset_mm=(0.0, 0.0, 0.0), drop=()) -> Pat
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory, assets) -> Path:
-    return make_dataset(tmp_path_factory.mktemp("synthetic"), assets / "models")
+    return make_dataset(tmp_path_factory.mktemp("synthetic"), assets)
 
 
 def _eval(dataset, out, csv, *extra) -> int:
@@ -96,10 +99,13 @@ def test_ground_truth_scores_100(dataset, tmp_path):
     assert summary["dataset"]["preset"] == "synthetic" and summary["ms_per_frame"] == pytest.approx(50.0)
     assert summary["calibration"] == {"n_frames": 0, "trans_mm": None, "rot_deg": None}
     assert {"numpy", "scipy", "cv2"} <= set(summary["versions"])
-    points = summary["model_points"]["2"]  # 1000 drawn vertices and their half-turn partners
-    assert (points["n_vertices"], points["n_unique"], points["subsampled"]) == (7889, 7889, True)
-    assert 1000 < points["n_points"] <= 2000
+    points = summary["model_points"]["2"]
+    n_vertices = len(trimesh.load(dataset / "models_eval" / "obj_000002.ply", process=False).vertices)
+    assert points["n_vertices"] == n_vertices and points["n_query"] == min(n_vertices, MAX_QUERY)
     assert read_results(out / "results.csv").keys() == read_results(csv).keys()
+    # The BOP toolkit finds results by their name: METHOD_DATASET-SPLIT.csv.
+    assert summary["bop_results"] == "bop-csv_syneepose-test.csv"
+    assert (out / "bop-csv_syneepose-test.csv").read_bytes() == (out / "results.csv").read_bytes()
 
 
 def test_offset_of_3mm_scores_its_closed_form_and_missing_frames_fail(dataset, tmp_path):
@@ -124,22 +130,54 @@ def test_offset_of_3mm_scores_its_closed_form_and_missing_frames_fail(dataset, t
     assert len(read_results(tmp_path / "out" / "results.csv")) == 7
 
 
-def test_resume_skips_complete_scenes(dataset, tmp_path):
-    out = tmp_path / "out"
-    csv = gt_csv(tmp_path / "results.csv", dataset, offset_mm=(3.0, 0.0, 0.0))
-    assert _eval(dataset, out, csv) == 0
-    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "scenes").iterdir()}
-    # Same run again: nothing is recomputed (the CSV now holds the ground truth; no scene reads it).
-    gt_csv(csv, dataset)
-    assert _eval(dataset, out, csv) == 0
-    assert {p.name: p.stat().st_mtime_ns for p in (out / "scenes").iterdir()} == stamps
-    assert json.loads((out / "summary.json").read_text())["average"]["add@1cm"] == pytest.approx(70.0, abs=0.1)
+def _stamps(out: Path) -> dict[str, int]:
+    return {p.name: p.stat().st_mtime_ns for p in (out / "scenes").iterdir()}
+
+
+def _per_ee(out: Path) -> dict[str, float]:
+    per_ee = json.loads((out / "summary.json").read_text())["per_end_effector"]
+    return {ee: round(acc["add@1cm"], 1) for ee, acc in per_ee.items()}
+
+
+def test_resume_skips_complete_scenes_and_never_reuses_a_stale_one(dataset, tmp_path, capsys):
+    data, out = tmp_path / "data", tmp_path / "out"
+    shutil.copytree(dataset, data)
+    csv = gt_csv(tmp_path / "results.csv", data, offset_mm=(3.0, 0.0, 0.0))
+    assert _eval(data, out, csv) == 0
+    stamps = _stamps(out)
+    # Same run, same inputs: nothing is recomputed.
+    assert _eval(data, out, csv) == 0
+    assert _stamps(out) == stamps and _per_ee(out) == {"kinova_3f": 70.0, "robotiq_2f85": 70.0}
     # A scene without its errors file is run again, and only that one.
     (out / "scenes" / "000001.errors.csv").unlink()
-    assert _eval(dataset, out, csv) == 0
-    per_ee = json.loads((out / "summary.json").read_text())["per_end_effector"]
-    assert per_ee["robotiq_2f85"]["add@1cm"] == pytest.approx(70.0, abs=0.1)
-    assert per_ee["kinova_3f"]["add@1cm"] == 100.0
+    assert _eval(data, out, csv) == 0
+    assert sorted({n.split(".")[0] for n in stamps if _stamps(out)[n] != stamps[n]}) == ["000001"]
+    # The method's input changed (the CSV now holds the ground truth): every scene is scored again, and said so.
+    gt_csv(csv, data)
+    capsys.readouterr()
+    assert _eval(data, out, csv) == 0
+    assert _per_ee(out) == {"kinova_3f": 100.0, "robotiq_2f85": 100.0}
+    assert "scene 0 is scored again: method input results.csv changed" in capsys.readouterr().err
+    # A re-written image of scene 1 (same bytes, new file) re-scores scene 1 only.
+    stamps = _stamps(out)
+    image = data / "test" / "000001" / "rgb" / "000002.png"
+    image.write_bytes(image.read_bytes())
+    assert _eval(data, out, csv) == 0
+    rescored = sorted({n.split(".")[0] for n in stamps if _stamps(out)[n] != stamps[n]})
+    assert rescored == ["000001"] and "rgb/000002.png" in capsys.readouterr().err
+    # So does a changed ground truth (scene JSON) and a changed evaluation model.
+    stamps = _stamps(out)
+    scene_gt = data / "test" / "000000" / "scene_gt.json"
+    scene_gt.write_text(scene_gt.read_text() + "\n")
+    assert _eval(data, out, csv) == 0
+    assert sorted({n.split(".")[0] for n in stamps if _stamps(out)[n] != stamps[n]}) == ["000000"]
+    assert "scene_gt.json" in capsys.readouterr().err
+    ply = data / "models_eval" / "obj_000004.ply"
+    mesh = trimesh.load(ply, process=False)
+    mesh.vertices[0] += 0.001
+    ply.write_bytes(trimesh.exchange.ply.export_ply(mesh))
+    assert _eval(data, out, csv) == 0
+    assert "scene 1 is scored again: the evaluation model (models_eval/)" in capsys.readouterr().err
 
 
 def test_scene_and_robot_selection(dataset, tmp_path):
@@ -223,7 +261,7 @@ def test_methods_get_observations_in_order_without_ground_truth(dataset, tmp_pat
     data = tmp_path / "data"
     shutil.copytree(dataset, data)
     for scene_id in SCENES:
-        scene = data / "train" / f"{scene_id:06d}"
+        scene = data / "test" / f"{scene_id:06d}"
         (scene / "depth_gt").mkdir()
         for im_id in range(FRAMES):
             write_png(scene / "depth_gt" / f"{im_id:06d}.png", np.full((H, W), 5000 + im_id, np.uint16))
@@ -235,7 +273,7 @@ def test_methods_get_observations_in_order_without_ground_truth(dataset, tmp_pat
     observations = [item[1] for item in Probe.seen if item[0] == "frame"]
     assert [o.im_id for o in observations] == [0, 1, 2, 3] * 2
     assert not hasattr(observations[0], "T_cam_ee")
-    frame = read_frame(data / "train" / "000000", 2)
+    frame = read_frame(data / "test" / "000000", 2)
     assert np.array_equal(observations[2].mask, frame.mask_visib) and np.array_equal(observations[2].rgb, frame.rgb)
     assert observations[2].depth[0, 0] == pytest.approx(0.5002)  # 5002 x depth_scale 0.1 mm
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())

@@ -83,14 +83,14 @@ def _run(bank, net, frames, **options):
 def test_full_method_tracks_the_gripper(bank_2f85, tiny_dataset):
     """Variant D, weight-free backbone, no depth alignment: most frames within 1 cm ADD-S."""
     from eval.metrics import adds
-    from eval.model_points import load_model_points
+    from eval.model_points import load_eval_model
 
     bank, net, *_ = bank_2f85
     meta, frames = _scene(tiny_dataset, "robotiq_2f85")
     results = _run(bank, net, frames, variant="D")
-    points = load_model_points(tiny_dataset / "models", meta.obj_id).points
+    model = load_eval_model(tiny_dataset, meta.obj_id)
     T_est = np.stack([r.T_cam_ee if r.T_cam_ee is not None else np.full((4, 4), np.nan) for r in results])
-    errors = adds(T_est, np.stack([f.T_cam_ee for f in frames]), points)
+    errors = adds(T_est, np.stack([f.T_cam_ee for f in frames]), model.query, model.tree, model.weights)
     assert np.mean(errors < 0.01) > 0.5, errors
 
 

@@ -43,5 +43,9 @@ class Method(Protocol):
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
         """A new video segment begins: reset any memory."""
 
+    def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
+        """Optional: the files or folders the method reads for this scene besides its frames (templates,
+        models, a results file), so that a rerun scores the scene again when they change."""
+
     def estimate(self, obs: Observation) -> Estimate:
         """One frame, in frame order (online)."""

@@ -23,6 +23,9 @@ class BopCsv:
     def options(self) -> dict:
         return {"results": str(self.results.resolve()), "name": self.label}
 
+    def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
+        return [self.results]
+
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
         """The first scene also validates the CSV against the data set (root/split/scene)."""
         scene_dir = Path(scene_dir)

@@ -44,15 +44,20 @@ class Feepe:
                 "layer": self.backbone.options().get("layer"), "n_templates": self.n_templates,
                 "k_r": self.opts.single.k_r, "k_f": self.opts.k_f, "estimator": describe(self.opts, self.backbone)}
 
+    def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
+        """The template set of the scene's end-effector, and the model `--icp` aligns to depth."""
+        root = Path(self.templates_dir) if self.templates_dir else Path(scene_dir).parents[1] / "templates"
+        found = [find_template_set(root, meta.end_effector, self.n_templates)]
+        if self.opts.icp:
+            found.append(Path(scene_dir).parents[1] / "models" / f"obj_{meta.obj_id:06d}.ply")
+        return found
+
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
         ee = meta.end_effector
         if ee not in self._estimators:
-            root = Path(self.templates_dir) if self.templates_dir else Path(scene_dir).parents[1] / "templates"
-            folder = find_template_set(root, ee, self.n_templates)
+            folder, *model_ply = self.inputs(meta, scene_dir)
             bank = onboard(folder, self.backbone, self.opts.single.pad)
-            model = None
-            if self.opts.icp:
-                model = SurfaceModel.from_ply(Path(scene_dir).parents[1] / "models" / f"obj_{meta.obj_id:06d}.ply")
+            model = SurfaceModel.from_ply(model_ply[0]) if model_ply else None
             self._estimators[ee] = Estimator(bank, self.backbone, self.opts, model)
         self._current = self._estimators[ee]
         self._current.reset()

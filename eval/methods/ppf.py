@@ -25,9 +25,12 @@ class Ppf:
     def options(self) -> dict:
         return {"name": "PPF + ICP", "ppf": vars(self.opts)}
 
+    def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
+        return [Path(scene_dir).parents[1] / "models" / f"obj_{meta.obj_id:06d}.ply"]
+
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
         if meta.obj_id not in self._detectors:
-            ply = Path(scene_dir).parents[1] / "models" / f"obj_{meta.obj_id:06d}.ply"
+            [ply] = self.inputs(meta, scene_dir)
             self._detectors[meta.obj_id] = PpfDetector(SurfaceModel.from_ply(ply), self.opts)
         self._current = self._detectors[meta.obj_id]
 

@@ -1,0 +1,76 @@
+"""What a scored scene was computed from, so that a rerun into the same `--out` never reuses a stale score.
+
+A scene's fingerprint lists every input file: the scene's JSON files by content hash, its images (RGB, the
+depth folder read, visible masks) by size and modification time (as make and rsync judge files; hashing
+every image of a 54,000-frame data set on each rerun would cost more than scoring it), the evaluation
+model by hash and the method's own inputs (e.g. FEEPE's template set) by size and modification time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+SCENE_JSONS = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_robot.json")
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _stat(path: Path) -> list[int] | None:
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return None
+    return [st.st_size, st.st_mtime_ns]
+
+
+def files_stat(paths: list[Path]) -> dict[str, list[int] | None]:
+    """Size and mtime of each file; a folder stands for every file below it (hidden ones excepted)."""
+    out = {}
+    for path in paths:
+        path = Path(path)
+        if path.is_dir():
+            for f in sorted(p for p in path.rglob("*") if p.is_file() and not p.name.startswith(".")):
+                out[str(f)] = _stat(f)
+        else:
+            out[str(path)] = _stat(path)
+    return out
+
+
+def scene_fingerprint(scene_dir: Path, im_ids: list[int], depth_dir: str, model_sha256: str,
+                      method_inputs: list[Path]) -> dict:
+    scene_dir = Path(scene_dir)
+    images = {}
+    for im_id in im_ids:
+        for folder, name in (("rgb", f"{im_id:06d}.png"), (depth_dir, f"{im_id:06d}.png"),
+                             ("mask_visib", f"{im_id:06d}_000000.png")):
+            images[f"{folder}/{name}"] = _stat(scene_dir / folder / name)
+    return {"im_ids": list(im_ids),
+            "json": {name: _sha256(scene_dir / name) for name in SCENE_JSONS if (scene_dir / name).is_file()},
+            "images": images, "model_eval": model_sha256, "method_inputs": files_stat(method_inputs)}
+
+
+def differences(before: dict, now: dict) -> list[str]:
+    """What changed between two fingerprints, in words (first few items of each kind)."""
+    said = []
+    if before.get("im_ids") != now["im_ids"]:
+        said.append(f"frames {before.get('im_ids')} -> {now['im_ids']}")
+    for kind, label in (("json", ""), ("images", ""), ("method_inputs", "method input ")):
+        old, new = before.get(kind, {}), now[kind]
+        changed = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        if changed:
+            more = f" and {len(changed) - 3} more" if len(changed) > 3 else ""
+            said.append(f"{label}{', '.join(Path(c).name if kind == 'method_inputs' else c for c in changed[:3])}{more}")
+    if before.get("model_eval") != now["model_eval"]:
+        said.append("the evaluation model (models_eval/)")
+    return said
+
+
+def read_fingerprint(path: Path) -> dict | None:
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
