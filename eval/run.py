@@ -292,7 +292,7 @@ def main(argv=None) -> int:
     parser.add_argument("--backbone", help="method option: feature backbone")
     parser.add_argument("--icp", action="store_const", const=True,
                         help="feepe option: add depth alignment (our extension, not in the paper)")
-    parser.add_argument("--layer", type=int, help="feepe option: DINOv2 block (counted from 1; paper: 19)")
+    parser.add_argument("--layer", type=int, help="feepe option: DINOv2 block, counted from 0 as FoundPose (paper: 19 of ViT-L's 0..23)")
     parser.add_argument("--n-templates", type=int, help="feepe option: template set by count (default: largest)")
     parser.add_argument("--k-r", type=int, help="feepe option: reference templates per frame (paper: 5)")
     parser.add_argument("--k-f", type=int, help="feepe option: key frames (paper: 8)")
