@@ -35,7 +35,7 @@ from syneepose.bop import SceneMeta, read_frame, read_png, read_scene, scene_dir
 from syneepose.errors import UserError
 
 METHOD_OPTIONS = ("variant", "icp", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
-                  "templates_dir", "hand_eye", "results", "name")  # CLI options handed to the method's constructor
+                  "templates_dir", "bow_assignment", "hand_eye", "results", "name")  # CLI options handed to the method's constructor
 NO_POSE = np.full((4, 4), np.nan)
 
 
@@ -298,6 +298,8 @@ def main(argv=None) -> int:
     parser.add_argument("--k-f", type=int, help="feepe option: key frames (paper: 8)")
     parser.add_argument("--backbone-weights", help="feepe option: DINOv2 weights (HF folder or torch-hub .pth)")
     parser.add_argument("--templates-dir", help="feepe option: template root (default: DATASET/templates)")
+    parser.add_argument("--bow-assignment", help="feepe option: BoW word assignment, foundpose (FoundPose's, "
+                        "default) or gaussian (ours: distance-weighted votes)")
     parser.add_argument("--hand-eye", help="handeye option: tsai (default), park, horaud, andreff, daniilidis")
     parser.add_argument("--results", help="bop-csv option: the BOP results CSV to score")
     parser.add_argument("--name", help="bop-csv option: the label of those results (e.g. MegaPose)")

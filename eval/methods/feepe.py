@@ -26,8 +26,11 @@ from syneepose.templates import find_template_set
 class Feepe:
     def __init__(self, variant: str = "D", backbone: str = DEFAULT_BACKBONE, layer: int | None = None,
                  n_templates: int | None = None, k_r: int = 5, k_f: int = 8, backbone_weights: str | None = None,
-                 templates_dir: str | None = None, icp: bool = False):
+                 templates_dir: str | None = None, icp: bool = False, bow_assignment: str = "foundpose"):
+        if bow_assignment not in ("foundpose", "gaussian"):
+            raise UserError(f"--bow-assignment {bow_assignment!r}: foundpose (FoundPose's) or gaussian (ours)")
         self.opts = FeepeOptions(variant=variant, k_f=k_f, icp=icp, single=SingleFrameOptions(k_r=k_r))
+        self.bow_assignment = bow_assignment
         kwargs = {}
         if backbone.startswith("dinov2"):
             kwargs = {"layer": layer, "weights": backbone_weights}
@@ -42,7 +45,8 @@ class Feepe:
         """The table keys first (variant, backbone, layer, n_templates, k_r, k_f), then every detail."""
         return {"variant": self.opts.variant, "icp": self.opts.icp, "backbone": self.backbone.name,
                 "layer": self.backbone.options().get("layer"), "n_templates": self.n_templates,
-                "k_r": self.opts.single.k_r, "k_f": self.opts.k_f, "estimator": describe(self.opts, self.backbone)}
+                "k_r": self.opts.single.k_r, "k_f": self.opts.k_f, "bow_assignment": self.bow_assignment,
+                "estimator": describe(self.opts, self.backbone)}
 
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
         """The template set of the scene's end-effector, and the model `--icp` aligns to depth."""
@@ -56,7 +60,7 @@ class Feepe:
         ee = meta.end_effector
         if ee not in self._estimators:
             folder, *model_ply = self.inputs(meta, scene_dir)
-            bank = onboard(folder, self.backbone, self.opts.single.pad)
+            bank = onboard(folder, self.backbone, self.opts.single.pad, {"assignment": self.bow_assignment})
             model = SurfaceModel.from_ply(model_ply[0]) if model_ply else None
             self._estimators[ee] = Estimator(bank, self.backbone, self.opts, model)
         self._current = self._estimators[ee]
