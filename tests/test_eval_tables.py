@@ -33,7 +33,7 @@ class Tuned(BopCsv):
 @pytest.fixture(scope="module")
 def result_dirs(tmp_path_factory, assets):
     root = tmp_path_factory.mktemp("tables")
-    dataset = make_dataset(root / "data", assets / "models")
+    dataset = make_dataset(root / "data", assets)
     offset, exact = gt_csv(root / "offset.csv", dataset, offset_mm=(0.0, 0.0, 3.0)), gt_csv(root / "gt.csv", dataset)
     common = ["--dataset", str(dataset)]
     assert run.main(["--method", "bop-csv", "--out", str(root / "peer"), "--results", str(offset),
