@@ -31,7 +31,7 @@ from eval.metrics import add, adds, rotation_error_deg, translation_error_mm
 from eval.model_points import MAX_QUERY, MODELS_EVAL, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
-from syneepose.bop import SceneMeta, read_frame, read_png, read_scene, scene_dirs, write_atomic
+from syneepose.bop import SceneMeta, read_frame, read_png, read_scene, scene_dirs, split_name, write_atomic
 from syneepose.errors import UserError
 
 METHOD_OPTIONS = ("variant", "icp", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
@@ -222,7 +222,7 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     method = build_method(method_name, options)
     dataset, out = Path(dataset).resolve(), Path(out)
     info, opts = _dataset_info(dataset), method.options()
-    split = info.get("split", "train")
+    split = split_name(dataset)
     selected = find_scenes(dataset / split, scenes, robots)
     identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir,
                 "metric": {"models": MODELS_EVAL, "max_query": MAX_QUERY, "query": "grid cells"}}
