@@ -3,10 +3,13 @@ set's `models_eval/obj_XXXXXX.ply` (uniformly resampled, no duplicate vertices; 
 
 BOP (bop_toolkit_lib.pose_error `add` / `adi`; Hinterstoisser et al., ACCV 2012; Hodan et al., ECCV 2018)
 averages over all vertices and searches the ADD-S nearest neighbour over all vertices. Ours searches over
-all vertices too (one cKDTree per model). Only the mean may run over a subset (the query side): the model
-is cut into cubic cells, each cell's vertex nearest its centroid stands for the cell and is weighted by the
-cell's vertex count, which estimates BOP's mean over all vertices far more closely than a random subset
-of the same size (measured: README, tests/test_eval_metrics.py). `max_query=None` gives BOP's number exactly.
+all vertices too (one kd-tree per model). Only the mean may run over a subset (the query side), by
+stratified sampling: the model is cut into cubic cells, and for each frame one vertex is drawn at random
+in every cell and weighted by the cell's share of the vertices. Its expectation is BOP's mean over all
+vertices, and the draws are independent between frames, so the errors of single frames average out of
+an AUC. A fixed representative per cell (the vertex nearest its centroid, our first version) was biased
+low on ADD-S by about 10 um at 4000 cells, enough to move AUC@1cm by 0.1 on the Shadow Hand (README,
+tests/test_eval_metrics.py). `max_query=None` gives BOP's number exactly.
 """
 
 from __future__ import annotations
@@ -18,27 +21,54 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
-
-from eval.metrics import model_tree
+from eval.metrics import KDTree, model_tree
 from syneepose.errors import UserError
 
 MODELS_EVAL = "models_eval"
-MAX_QUERY = 4000  # query vertices per model: AUC within 0.1 of all vertices (tests), cost in benchmarks/metrics.py
+MAX_QUERY = 1000  # cells, one query vertex drawn in each per frame: tests/test_eval_metrics.py, benchmarks/
+QUERY_SEED = 0  # with the frame's key, seeds the frame's draw: a frame scores the same whatever is scored with it
+
+
+@dataclass(frozen=True)
+class QueryCells:
+    """The model's vertex indices grouped by cubic cell: cell c holds order[starts[c] : starts[c] + counts[c]]."""
+
+    order: np.ndarray
+    starts: np.ndarray
+    counts: np.ndarray
+
+    @property
+    def weights(self) -> np.ndarray:
+        return self.counts / self.counts.sum()
 
 
 @dataclass
 class EvalModel:
     obj_id: int
     vertices: np.ndarray  # (n, 3) metres: every vertex of the PLY, the ADD-S search set
-    query: np.ndarray  # (q, 3) metres: the points the means run over (all vertices unless subsampled)
-    weights: np.ndarray | None  # (q,) summing to 1 for a subset; None = plain mean over all vertices
-    tree: cKDTree  # over `vertices`
+    tree: KDTree  # over `vertices`
     sha256: str  # of the PLY file, so a run knows when the model it was scored on changed
+    cells: QueryCells | None  # the query strata; None = the means run over every vertex
 
     @property
     def subsampled(self) -> bool:
-        return len(self.query) < len(self.vertices)
+        return self.cells is not None
+
+    @property
+    def n_query(self) -> int:
+        return len(self.vertices) if self.cells is None else len(self.cells.counts)
+
+    def query_points(self, keys) -> tuple[np.ndarray, np.ndarray | None]:
+        """The points the means run over for frames named by integer `keys` (e.g. (scene_id, im_id) each):
+        (n, q, 3) vertices, one drawn per cell from a generator seeded by the frame's key, and the cells'
+        weights (q,); every vertex (q, 3) and weights None when not subsampled."""
+        if self.cells is None:
+            return self.vertices, None
+        c = self.cells
+        u = np.stack([np.random.default_rng([QUERY_SEED, *np.atleast_1d(key)]).random(len(c.counts))
+                      for key in keys]).reshape(-1, len(c.counts))
+        picks = c.order[c.starts + np.minimum((u * c.counts).astype(np.int64), c.counts - 1)]
+        return self.vertices[picks], c.weights
 
 
 def _cells(vertices: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
@@ -48,20 +78,18 @@ def _cells(vertices: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
     return inverse.ravel(), counts
 
 
-def query_subset(vertices: np.ndarray, max_query: int | None) -> tuple[np.ndarray, np.ndarray | None]:
-    """At most `max_query` vertices, one per occupied cell of the finest grid that has no more cells, each
-    weighted by its cell's share of the vertices; all vertices (weights None) when None or fewer."""
+def query_cells(vertices: np.ndarray, max_query: int | None) -> QueryCells | None:
+    """The finest cubic grid with at most `max_query` occupied cells; None (every vertex) when max_query is
+    None or the model has no more vertices than that."""
     if max_query is None or len(vertices) <= max_query:
-        return vertices, None
+        return None
     lo, hi = np.log(np.ptp(vertices, axis=0).max() * 1e-4), np.log(np.ptp(vertices, axis=0).max())
     for _ in range(40):  # bisection on log cell size: the cell count falls as the cells grow
         mid = (lo + hi) / 2
         lo, hi = (mid, hi) if len(_cells(vertices, np.exp(mid))[1]) > max_query else (lo, mid)
     cell, counts = _cells(vertices, np.exp(hi))
-    centroids = np.stack([np.bincount(cell, vertices[:, i]) for i in range(3)], axis=1) / counts[:, None]
-    order = np.lexsort((np.linalg.norm(vertices - centroids[cell], axis=1), cell))
-    nearest = order[np.r_[0, np.flatnonzero(np.diff(cell[order])) + 1]]
-    return vertices[nearest], counts[cell[nearest]] / len(vertices)
+    return QueryCells(order=np.argsort(cell, kind="stable"), starts=np.r_[0, np.cumsum(counts)[:-1]],
+                      counts=counts)
 
 
 def symmetries_m(info: dict) -> list[np.ndarray]:
@@ -87,6 +115,5 @@ def load_eval_model(dataset: Path, obj_id: int, max_query: int | None = MAX_QUER
     vertices = np.asarray(trimesh.load(ply, file_type="ply", process=False).vertices, dtype=float) / 1000.0
     if len(vertices) == 0:
         raise UserError(f"{ply}: no vertices; rebuild the models (python -m syneepose assets)")
-    query, weights = query_subset(vertices, max_query)
-    return EvalModel(obj_id=obj_id, vertices=vertices, query=query, weights=weights, tree=model_tree(vertices),
-                     sha256=hashlib.sha256(data).hexdigest())
+    return EvalModel(obj_id=obj_id, vertices=vertices, tree=model_tree(vertices),
+                     sha256=hashlib.sha256(data).hexdigest(), cells=query_cells(vertices, max_query))

@@ -28,7 +28,7 @@ from eval.methods import get_method
 from eval.methods.base import Estimate, Observation
 from eval.fingerprint import differences, read_fingerprint, scene_fingerprint
 from eval.metrics import add, adds, rotation_error_deg, translation_error_mm
-from eval.model_points import MAX_QUERY, MODELS_EVAL, EvalModel, load_eval_model
+from eval.model_points import MAX_QUERY, MODELS_EVAL, QUERY_SEED, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
 from syneepose.bop import SceneMeta, read_frame, read_png, read_scene, scene_dirs, split_name, write_atomic
@@ -122,8 +122,9 @@ def score_scene(scene: Scene, T_gt: np.ndarray, estimates: list[Estimate], wall_
                 model: EvalModel) -> list[FrameErrors]:
     T_est = np.stack([_pose(e.T_cam_ee) for e in estimates])
     T_base = np.stack([_pose(e.T_cam_base) for e in estimates])
-    add_m = add(T_est, T_gt, model.query, model.weights)
-    adds_m = adds(T_est, T_gt, model.query, model.tree, model.weights)
+    points, weights = model.query_points([(scene.scene_id, im_id) for im_id in scene.im_ids])
+    add_m = add(T_est, T_gt, points, weights)
+    adds_m = adds(T_est, T_gt, points, model.tree, weights)
     rot, trans = rotation_error_deg(T_est, T_gt), translation_error_mm(T_est, T_gt)
     T_cam_base = scene.meta.T_cam_base
     calib_trans, calib_rot = translation_error_mm(T_base, T_cam_base), rotation_error_deg(T_base, T_cam_base)
@@ -225,7 +226,8 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     split = split_name(dataset)
     selected = find_scenes(dataset / split, scenes, robots)
     identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir,
-                "metric": {"models": MODELS_EVAL, "max_query": MAX_QUERY, "query": "grid cells"}}
+                "metric": {"models": MODELS_EVAL, "max_query": MAX_QUERY, "query": "one vertex drawn per grid cell and frame",
+                           "query_seed": QUERY_SEED}}
     models = {obj_id: load_eval_model(dataset, obj_id) for obj_id in sorted({s.meta.obj_id for s in selected})}
     _claim(out, identity)
     fingerprints = {s.scene_id: scene_fingerprint(s.path, s.im_ids, depth_dir, models[s.meta.obj_id].sha256,
@@ -270,11 +272,12 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
         "bop_results": bop_name,
         **summarise(all_errors),
         "model_points": {
-            str(obj_id): {"n_vertices": len(m.vertices), "n_query": len(m.query), "subsampled": m.subsampled,
+            str(obj_id): {"n_vertices": len(m.vertices), "n_query": m.n_query, "subsampled": m.subsampled,
                           "sha256": m.sha256} for obj_id, m in models.items()},
         "model_points_rule": (f"every vertex of {MODELS_EVAL}/obj_XXXXXX.ply (mm -> m) is searched for the ADD-S "
-                              f"nearest neighbour; the means run over at most {MAX_QUERY} of them, one per cell of a "
-                              "cubic grid weighted by the cell's vertex count (an estimate of BOP's mean over all)"),
+                              f"nearest neighbour; the means run over at most {MAX_QUERY} of them, one drawn at random per cell "
+                              "of a cubic grid and frame, weighted by the cell's vertex count (an unbiased estimate "
+                              "of BOP's mean over all, seeded by scene and image id)"),
         "versions": _versions(),
         "git_commit": _git_commit(),
     }

@@ -112,30 +112,56 @@ def test_bop_metrics_exactly_on_a_rendered_scene(tiny_dataset):
         if obj_id != 2:  # the 2F-85 (64k vertices) keeps the all-pairs check near ten seconds
             continue
         model = load_eval_model(tiny_dataset, obj_id, max_query=None)
-        assert len(model.query) == len(model.vertices) == len(np.unique(model.vertices, axis=0))
+        points, weights = model.query_points([(0, 0), (0, 1)])
+        assert not model.subsampled and weights is None and points is model.vertices
+        assert len(model.vertices) == len(np.unique(model.vertices, axis=0))
         T_est, T_gt = _perturbed(frames_T[:2], 1, rng)
         want_add, want_adds = _brute_force(T_est, T_gt, model.vertices)
-        assert add(T_est, T_gt, model.query) == pytest.approx(want_add, abs=1e-6)
-        assert adds(T_est, T_gt, model.query, model.tree) == pytest.approx(want_adds, abs=1e-6)
+        assert add(T_est, T_gt, points) == pytest.approx(want_add, abs=1e-6)
+        assert adds(T_est, T_gt, points, model.tree) == pytest.approx(want_adds, abs=1e-6)
         assert (want_adds > 1e-4).all()  # the perturbation is large enough to be a check
 
 
 def test_query_subsample_keeps_the_auc_of_all_vertices(tiny_dataset):
-    """The evaluator's default (at most MAX_QUERY weighted query vertices, the whole model searched) against
-    every vertex: AUC of ADD and ADD-S at 1 and 2 cm within 0.1 points on perturbed rendered ground truth."""
+    """The evaluator's default (one vertex drawn per cell and frame, at most MAX_QUERY cells, the whole
+    model searched) against every vertex: AUC of ADD and ADD-S at 1 and 2 cm within 0.1 points on
+    perturbed rendered ground truth."""
     rng = np.random.default_rng(4)
     for obj_id, frames_T in _rendered_gt(tiny_dataset).items():
         full = load_eval_model(tiny_dataset, obj_id, max_query=None)
         sub = load_eval_model(tiny_dataset, obj_id)
-        assert sub.subsampled and 0.9 * MAX_QUERY < len(sub.query) <= MAX_QUERY  # a real subsample
-        assert sub.weights.sum() == pytest.approx(1.0) and set(map(tuple, sub.query)) <= set(map(tuple, full.vertices))
+        assert sub.subsampled and 0.9 * MAX_QUERY < sub.n_query <= MAX_QUERY  # a real subsample
         T_est, T_gt = _perturbed(frames_T, 40, rng)
-        for metric in (lambda m: add(T_est, T_gt, m.query, m.weights),
-                       lambda m: adds(T_est, T_gt, m.query, m.tree, m.weights)):
-            exact, estimate = metric(full), metric(sub)
+        points, weights = sub.query_points([(obj_id, i) for i in range(len(T_gt))])
+        assert points.shape == (len(T_gt), sub.n_query, 3) and weights.sum() == pytest.approx(1.0)
+        for exact, estimate in ((add(T_est, T_gt, full.vertices), add(T_est, T_gt, points, weights)),
+                                (adds(T_est, T_gt, full.vertices, full.tree),
+                                 adds(T_est, T_gt, points, sub.tree, weights))):
             for max_error in (0.01, 0.02):
                 assert abs(auc(estimate, max_error) - auc(exact, max_error)) < 0.1
             assert 20 < auc(exact, 0.01) < 90  # errors spread over the curve, not all 0 or all beyond
+
+
+def test_query_draws_are_per_frame_reproducible_and_unbiased(assets):
+    """One vertex per cell, drawn from the frame's own key: the same key gives the same points whatever
+    else is drawn with it, other keys give other points, and the weighted mean of a function of the
+    vertices averages to its mean over every vertex (the estimate BOP's mean is replaced by is unbiased)."""
+    model = load_eval_model(assets, 2)
+    cells = model.cells
+    alone, _ = model.query_points([(7, 3)])
+    batch, weights = model.query_points([(7, 2), (7, 3), (8, 3)])
+    np.testing.assert_array_equal(alone[0], batch[1])
+    assert not np.array_equal(batch[0], batch[1]) and not np.array_equal(batch[1], batch[2])
+    index = {tuple(v): i for i, v in enumerate(model.vertices)}
+    picked = np.array([index[tuple(v)] for v in batch[1]])
+    owner = np.empty(len(model.vertices), dtype=int)
+    owner[cells.order] = np.repeat(np.arange(len(cells.counts)), cells.counts)
+    np.testing.assert_array_equal(owner[picked], np.arange(len(cells.counts)))  # one vertex in each cell
+    f = np.linalg.norm(model.vertices - [0.01, 0.02, 0.03], axis=1) ** 3  # any function of the vertex
+    draws, weights = model.query_points([(0, i) for i in range(400)])
+    estimates = (np.linalg.norm(draws - [0.01, 0.02, 0.03], axis=-1) ** 3) @ weights
+    spread = estimates.std() / np.sqrt(len(estimates))
+    assert spread > 0 and abs(estimates.mean() - f.mean()) < 4 * spread
 
 
 def test_auc_closed_forms():

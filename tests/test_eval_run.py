@@ -101,7 +101,7 @@ def test_ground_truth_scores_100(dataset, tmp_path):
     assert {"numpy", "scipy", "cv2"} <= set(summary["versions"])
     points = summary["model_points"]["2"]
     n_vertices = len(trimesh.load(dataset / "models_eval" / "obj_000002.ply", process=False).vertices)
-    assert points["n_vertices"] == n_vertices and points["n_query"] == min(n_vertices, MAX_QUERY)
+    assert points["n_vertices"] == n_vertices and 0.9 * MAX_QUERY < points["n_query"] <= MAX_QUERY
     assert read_results(out / "results.csv").keys() == read_results(csv).keys()
     # The BOP toolkit finds results by their name: METHOD_DATASET-SPLIT.csv.
     assert summary["bop_results"] == "bop-csv_syneepose-test.csv"

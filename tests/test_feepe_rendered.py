@@ -90,7 +90,8 @@ def test_full_method_tracks_the_gripper(bank_2f85, tiny_dataset):
     results = _run(bank, net, frames, variant="D")
     model = load_eval_model(tiny_dataset, meta.obj_id)
     T_est = np.stack([r.T_cam_ee if r.T_cam_ee is not None else np.full((4, 4), np.nan) for r in results])
-    errors = adds(T_est, np.stack([f.T_cam_ee for f in frames]), model.query, model.tree, model.weights)
+    points, weights = model.query_points([(0, f.im_id) for f in frames])
+    errors = adds(T_est, np.stack([f.T_cam_ee for f in frames]), points, model.tree, weights)
     assert np.mean(errors < 0.01) > 0.5, errors
 
 
