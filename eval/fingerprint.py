@@ -3,7 +3,9 @@
 A scene's fingerprint lists every input file: the scene's JSON files by content hash, its images (RGB, the
 depth folder read, visible masks) by size and modification time (as make and rsync judge files; hashing
 every image of a 54,000-frame data set on each rerun would cost more than scoring it), the evaluation
-model by hash and the method's own inputs (e.g. FEEPE's template set) by size and modification time.
+model by hash, the metric's rule and the method's own inputs (e.g. FEEPE's template set) by size and
+modification time. The evaluation model and the metric only score the estimates: when nothing else
+changed, the stored estimates are scored again without running the method.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import json
 from pathlib import Path
 
 SCENE_JSONS = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_robot.json")
+SCORING = ("model_eval", "metric")  # what only the scoring reads, never the method
 
 
 def _sha256(path: Path) -> str:
@@ -41,7 +44,7 @@ def files_stat(paths: list[Path]) -> dict[str, list[int] | None]:
 
 
 def scene_fingerprint(scene_dir: Path, im_ids: list[int], depth_dir: str, model_sha256: str,
-                      method_inputs: list[Path]) -> dict:
+                      method_inputs: list[Path], metric: dict) -> dict:
     scene_dir = Path(scene_dir)
     images = {}
     for im_id in im_ids:
@@ -50,7 +53,7 @@ def scene_fingerprint(scene_dir: Path, im_ids: list[int], depth_dir: str, model_
             images[f"{folder}/{name}"] = _stat(scene_dir / folder / name)
     return {"im_ids": list(im_ids),
             "json": {name: _sha256(scene_dir / name) for name in SCENE_JSONS if (scene_dir / name).is_file()},
-            "images": images, "model_eval": model_sha256, "method_inputs": files_stat(method_inputs)}
+            "images": images, "model_eval": model_sha256, "metric": metric, "method_inputs": files_stat(method_inputs)}
 
 
 def differences(before: dict, now: dict) -> list[str]:
@@ -66,7 +69,14 @@ def differences(before: dict, now: dict) -> list[str]:
             said.append(f"{label}{', '.join(Path(c).name if kind == 'method_inputs' else c for c in changed[:3])}{more}")
     if before.get("model_eval") != now["model_eval"]:
         said.append("the evaluation model (models_eval/)")
+    if before.get("metric") != now["metric"]:
+        said.append("the metric's query rule")
     return said
+
+
+def only_scoring_changed(before: dict, now: dict) -> bool:
+    """True when what the method read is unchanged, so its stored estimates can simply be scored again."""
+    return all(before.get(k) == now[k] for k in now if k not in SCORING)
 
 
 def read_fingerprint(path: Path) -> dict | None:

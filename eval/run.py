@@ -3,7 +3,8 @@
 Writes <out>/results.csv (BOP; copied as <method>_<dataset>-<split>.csv, the name the BOP toolkit's
 scripts parse), <out>/errors.csv (one row per frame) and <out>/summary.json. Each scene's rows go to
 <out>/scenes/ as soon as the scene is done, with a fingerprint of every file it was computed from; a rerun
-resumes with the scenes that are missing and scores again every scene whose inputs changed.
+resumes with the scenes that are missing and runs again every scene whose inputs changed; when only the
+evaluation model or the metric changed, it scores the scene's stored estimates again without the method.
 """
 
 from __future__ import annotations
@@ -26,12 +27,13 @@ from eval.bop_results import BopResult, read_results, write_results
 from syneepose.cli import run_command
 from eval.methods import get_method
 from eval.methods.base import Estimate, Observation
-from eval.fingerprint import differences, read_fingerprint, scene_fingerprint
+from eval.fingerprint import differences, only_scoring_changed, read_fingerprint, scene_fingerprint
 from eval.metrics import add, adds, rotation_error_deg, translation_error_mm
 from eval.model_points import MAX_QUERY, MODELS_EVAL, QUERY_SEED, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
-from syneepose.bop import SceneMeta, read_frame, read_png, read_scene, scene_dirs, split_name, write_atomic
+from syneepose.bop import (SceneMeta, read_frame, read_gt_poses, read_png, read_scene, scene_dirs, split_name,
+                          write_atomic)
 from syneepose.errors import UserError
 
 METHOD_OPTIONS = ("variant", "icp", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
@@ -118,13 +120,18 @@ def _pose(T) -> np.ndarray:
     return NO_POSE if T is None else np.asarray(T, dtype=float)
 
 
+def _pose_errors(scene: Scene, im_ids: list[int], T_est: np.ndarray, T_gt: np.ndarray,
+                 model: EvalModel) -> tuple[np.ndarray, np.ndarray]:
+    """ADD and ADD-S (m) per frame, the query points drawn from each frame's (scene_id, im_id)."""
+    points, weights = model.query_points([(scene.scene_id, im_id) for im_id in im_ids])
+    return add(T_est, T_gt, points, weights), adds(T_est, T_gt, points, model.tree, weights)
+
+
 def score_scene(scene: Scene, T_gt: np.ndarray, estimates: list[Estimate], wall_s: list[float],
                 model: EvalModel) -> list[FrameErrors]:
     T_est = np.stack([_pose(e.T_cam_ee) for e in estimates])
     T_base = np.stack([_pose(e.T_cam_base) for e in estimates])
-    points, weights = model.query_points([(scene.scene_id, im_id) for im_id in scene.im_ids])
-    add_m = add(T_est, T_gt, points, weights)
-    adds_m = adds(T_est, T_gt, points, model.tree, weights)
+    add_m, adds_m = _pose_errors(scene, scene.im_ids, T_est, T_gt, model)
     rot, trans = rotation_error_deg(T_est, T_gt), translation_error_mm(T_est, T_gt)
     T_cam_base = scene.meta.T_cam_base
     calib_trans, calib_rot = translation_error_mm(T_base, T_cam_base), rotation_error_deg(T_base, T_cam_base)
@@ -135,6 +142,18 @@ def score_scene(scene: Scene, T_gt: np.ndarray, estimates: list[Estimate], wall_
                         time_s=float(e.time_s), score=float(e.score) if e.T_cam_ee is not None else np.nan,
                         wall_s=wall_s[i])
             for i, (im_id, e) in enumerate(zip(scene.im_ids, estimates))]
+
+
+def rescore_scene(out: Path, scene: Scene, model: EvalModel) -> list[FrameErrors]:
+    """The scene's stored rows with ADD / ADD-S computed again from its stored estimates (results.csv) and
+    ground truth; every other column is what the method's run wrote."""
+    results_csv, errors_csv, _ = _scene_files(out, scene.scene_id)
+    results, rows = read_results(results_csv), sorted(read_errors(errors_csv), key=lambda r: r.im_id)
+    found = [results.get((scene.scene_id, r.im_id, scene.meta.obj_id)) for r in rows]
+    T_est = np.stack([NO_POSE if f is None else f.T_cam_ee for f in found])
+    gt = read_gt_poses(scene.path)
+    add_m, adds_m = _pose_errors(scene, [r.im_id for r in rows], T_est, np.stack([gt[r.im_id] for r in rows]), model)
+    return [dataclasses.replace(r, add_m=float(a), adds_m=float(b)) for r, a, b in zip(rows, add_m, adds_m)]
 
 
 def run_scene(method, scene: Scene, depth_dir: str, model: EvalModel, bar) -> tuple[list, list]:
@@ -166,25 +185,28 @@ def _method_inputs(method, scene: Scene) -> list[Path]:
     return [Path(p) for p in inputs(scene.meta, scene.path)] if inputs else []
 
 
-def _stale(out: Path, scene: Scene, fingerprint: dict) -> list[str] | None:
-    """None when the scene's stored rows were computed from exactly these inputs; else what changed."""
+def _stale(out: Path, scene: Scene, fingerprint: dict) -> tuple[list[str] | None, bool]:
+    """(None, _) when the scene's stored rows were computed from exactly these inputs; else what changed,
+    and whether only the scoring changed (the stored estimates stand and are scored again)."""
     results_csv, errors_csv, fp_path = _scene_files(out, scene.scene_id)
     if not (results_csv.is_file() and errors_csv.is_file()):
-        return []
+        return [], False
     before = read_fingerprint(fp_path)
     if before is None:
-        return ["no fingerprint of its inputs (scored by an older version)"]
-    return differences(before, fingerprint) or None
+        return ["no fingerprint of its inputs (scored by an older version)"], False
+    changed = differences(before, fingerprint)
+    return (changed, only_scoring_changed(before, fingerprint)) if changed else (None, False)
 
 
 def _claim(out: Path, identity: dict) -> None:
-    """An out folder belongs to one run: resuming with another method, options or data set is refused."""
+    """An out folder belongs to one run: resuming with another method, options or data set is refused. (The
+    metric is not part of it: a changed metric scores the stored estimates again, scene by scene.)"""
     identity = json.loads(json.dumps(identity))  # as it reads back from run.json
     path = out / "run.json"
     if path.is_file():
         before = json.loads(path.read_text())
-        if before != identity:
-            changed = sorted(k for k in identity if before.get(k) != identity[k])
+        changed = sorted(k for k in identity if before.get(k) != identity[k])
+        if changed:
             raise UserError(f"--out {out} holds a run with other {', '.join(changed)} ({path}); "
                             "use another --out or delete it")
     try:
@@ -225,21 +247,28 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     info, opts = _dataset_info(dataset), method.options()
     split = split_name(dataset)
     selected = find_scenes(dataset / split, scenes, robots)
-    identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir,
-                "metric": {"models": MODELS_EVAL, "max_query": MAX_QUERY, "query": "one vertex drawn per grid cell and frame",
-                           "query_seed": QUERY_SEED}}
+    identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir}
+    metric = {"models": MODELS_EVAL, "max_query": MAX_QUERY, "query": "one vertex drawn per grid cell and frame",
+              "query_seed": QUERY_SEED}
     models = {obj_id: load_eval_model(dataset, obj_id) for obj_id in sorted({s.meta.obj_id for s in selected})}
     _claim(out, identity)
     fingerprints = {s.scene_id: scene_fingerprint(s.path, s.im_ids, depth_dir, models[s.meta.obj_id].sha256,
-                                                  _method_inputs(method, s)) for s in selected}
-    todo = []
+                                                  _method_inputs(method, s), metric) for s in selected}
+    todo, rescore = [], []
     for scene in selected:
-        changed = _stale(out, scene, fingerprints[scene.scene_id])
+        changed, scoring_only = _stale(out, scene, fingerprints[scene.scene_id])
         if changed is not None:
-            todo.append(scene)
+            (rescore if scoring_only else todo).append(scene)
         if changed:
-            print(f"eval: scene {scene.scene_id} is scored again: {'; '.join(changed)} changed since "
-                  "its last scoring", file=sys.stderr)
+            how = "its stored estimates are scored again" if scoring_only else "it is run and scored again"
+            print(f"eval: scene {scene.scene_id}: {'; '.join(changed)} changed since its last scoring; {how}",
+                  file=sys.stderr)
+    for scene in rescore:
+        _, errors_csv, fp_path = _scene_files(out, scene.scene_id)
+        errors = rescore_scene(out, scene, models[scene.meta.obj_id])
+        fp_path.unlink()
+        write_errors(errors_csv, errors)
+        write_atomic(fp_path, json.dumps(fingerprints[scene.scene_id], indent=1).encode())
     bar = tqdm(total=sum(len(s.im_ids) for s in selected), unit="frame", desc=f"eval {method_name}",
                initial=sum(len(s.im_ids) for s in selected) - sum(len(s.im_ids) for s in todo))
     try:

@@ -342,6 +342,13 @@ def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
     return meta, im_ids
 
 
+def read_gt_poses(scene_dir: Path) -> dict[int, np.ndarray]:
+    """T_cam_ee (metres) of every frame in scene_gt.json, without reading any image."""
+    gt = json.loads((Path(scene_dir) / "scene_gt.json").read_text())
+    return {int(k): make_T(np.reshape(v[GT_ID]["cam_R_m2c"], (3, 3)), np.array(v[GT_ID]["cam_t_m2c"]) / 1000.0)
+            for k, v in gt.items()}
+
+
 def read_frame(scene_dir: Path, im_id: int) -> Frame:
     """One complete frame back in our units: depth and translations in metres, masks as bool."""
     scene_dir = Path(scene_dir)

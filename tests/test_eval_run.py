@@ -157,7 +157,8 @@ def test_resume_skips_complete_scenes_and_never_reuses_a_stale_one(dataset, tmp_
     capsys.readouterr()
     assert _eval(data, out, csv) == 0
     assert _per_ee(out) == {"kinova_3f": 100.0, "robotiq_2f85": 100.0}
-    assert "scene 0 is scored again: method input results.csv changed" in capsys.readouterr().err
+    assert ("scene 0: method input results.csv changed since its last scoring; it is run and scored again"
+            in capsys.readouterr().err)
     # A re-written image of scene 1 (same bytes, new file) re-scores scene 1 only.
     stamps = _stamps(out)
     image = data / "test" / "000001" / "rgb" / "000002.png"
@@ -172,12 +173,26 @@ def test_resume_skips_complete_scenes_and_never_reuses_a_stale_one(dataset, tmp_
     assert _eval(data, out, csv) == 0
     assert sorted({n.split(".")[0] for n in stamps if _stamps(out)[n] != stamps[n]}) == ["000000"]
     assert "scene_gt.json" in capsys.readouterr().err
+    # A changed evaluation model scores scene 1's stored estimates again without running the method: its
+    # results file stays as it was, its errors move and equal a fresh run's into another folder.
+    gt_csv(csv, data, offset_mm=(3.0, 0.0, 0.0))
+    assert _eval(data, out, csv) == 0
+    stamps, before = _stamps(out), read_errors(out / "scenes" / "000001.errors.csv")
     ply = data / "models_eval" / "obj_000004.ply"
     mesh = trimesh.load(ply, process=False)
-    mesh.vertices[0] += 0.001
+    mesh.vertices *= 1.5
     ply.write_bytes(trimesh.exchange.ply.export_ply(mesh))
+    capsys.readouterr()
     assert _eval(data, out, csv) == 0
-    assert "scene 1 is scored again: the evaluation model (models_eval/)" in capsys.readouterr().err
+    assert ("scene 1: the evaluation model (models_eval/) changed since its last scoring; its stored estimates "
+            "are scored again") in capsys.readouterr().err
+    now = _stamps(out)
+    assert sorted(n for n in stamps if now[n] != stamps[n]) == ["000001.errors.csv", "000001.fingerprint.json"]
+    after = read_errors(out / "scenes" / "000001.errors.csv")
+    assert all(a.adds_m != b.adds_m for a, b in zip(after, before))
+    assert _eval(data, tmp_path / "fresh", csv) == 0
+    fresh = read_errors(tmp_path / "fresh" / "scenes" / "000001.errors.csv")
+    assert [(r.im_id, r.add_m, r.adds_m) for r in after] == [(r.im_id, r.add_m, r.adds_m) for r in fresh]
 
 
 def test_scene_and_robot_selection(dataset, tmp_path):
