@@ -185,6 +185,18 @@ def _method_inputs(method, scene: Scene) -> list[Path]:
     return [Path(p) for p in inputs(scene.meta, scene.path)] if inputs else []
 
 
+def _scene_ids(ids: list[int]) -> str:
+    """'scene 3' or 'scenes 0-5, 9': consecutive ids as ranges, so a changed data set says one line."""
+    runs = []
+    for i in ids:
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    text = ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+    return f"scene {text}" if len(ids) == 1 else f"scenes {text}"
+
+
 def _stale(out: Path, scene: Scene, fingerprint: dict) -> tuple[list[str] | None, bool]:
     """(None, _) when the scene's stored rows were computed from exactly these inputs; else what changed,
     and whether only the scoring changed (the stored estimates stand and are scored again)."""
@@ -254,15 +266,16 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     _claim(out, identity)
     fingerprints = {s.scene_id: scene_fingerprint(s.path, s.im_ids, depth_dir, models[s.meta.obj_id].sha256,
                                                   _method_inputs(method, s), metric) for s in selected}
-    todo, rescore = [], []
+    todo, rescore, said = [], [], {}
     for scene in selected:
         changed, scoring_only = _stale(out, scene, fingerprints[scene.scene_id])
         if changed is not None:
             (rescore if scoring_only else todo).append(scene)
         if changed:
-            how = "its stored estimates are scored again" if scoring_only else "it is run and scored again"
-            print(f"eval: scene {scene.scene_id}: {'; '.join(changed)} changed since its last scoring; {how}",
-                  file=sys.stderr)
+            said.setdefault(("; ".join(changed), scoring_only), []).append(scene.scene_id)
+    for (changed, scoring_only), ids in said.items():
+        how = ("stored estimates are scored again" if scoring_only else "run and scored again")
+        print(f"eval: {_scene_ids(ids)}: {changed} changed since the last scoring; {how}", file=sys.stderr)
     for scene in rescore:
         _, errors_csv, fp_path = _scene_files(out, scene.scene_id)
         errors = rescore_scene(out, scene, models[scene.meta.obj_id])

@@ -157,7 +157,7 @@ def test_resume_skips_complete_scenes_and_never_reuses_a_stale_one(dataset, tmp_
     capsys.readouterr()
     assert _eval(data, out, csv) == 0
     assert _per_ee(out) == {"kinova_3f": 100.0, "robotiq_2f85": 100.0}
-    assert ("scene 0: method input results.csv changed since its last scoring; it is run and scored again"
+    assert ("scenes 0-1: method input results.csv changed since the last scoring; run and scored again"
             in capsys.readouterr().err)
     # A re-written image of scene 1 (same bytes, new file) re-scores scene 1 only.
     stamps = _stamps(out)
@@ -184,7 +184,7 @@ def test_resume_skips_complete_scenes_and_never_reuses_a_stale_one(dataset, tmp_
     ply.write_bytes(trimesh.exchange.ply.export_ply(mesh))
     capsys.readouterr()
     assert _eval(data, out, csv) == 0
-    assert ("scene 1: the evaluation model (models_eval/) changed since its last scoring; its stored estimates "
+    assert ("scene 1: the evaluation model (models_eval/) changed since the last scoring; stored estimates "
             "are scored again") in capsys.readouterr().err
     now = _stamps(out)
     assert sorted(n for n in stamps if now[n] != stamps[n]) == ["000001.errors.csv", "000001.fingerprint.json"]
