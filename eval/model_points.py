@@ -65,7 +65,7 @@ class EvalModel:
         if self.cells is None:
             return self.vertices, None
         c = self.cells
-        u = np.stack([np.random.default_rng([QUERY_SEED, *np.atleast_1d(key)]).random(len(c.counts))
+        u = np.array([np.random.default_rng([QUERY_SEED, *np.atleast_1d(key)]).random(len(c.counts))
                       for key in keys]).reshape(-1, len(c.counts))
         picks = c.order[c.starts + np.minimum((u * c.counts).astype(np.int64), c.counts - 1)]
         return self.vertices[picks], c.weights

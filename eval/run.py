@@ -317,9 +317,9 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
             str(obj_id): {"n_vertices": len(m.vertices), "n_query": m.n_query, "subsampled": m.subsampled,
                           "sha256": m.sha256} for obj_id, m in models.items()},
         "model_points_rule": (f"every vertex of {MODELS_EVAL}/obj_XXXXXX.ply (mm -> m) is searched for the ADD-S "
-                              f"nearest neighbour; the means run over at most {MAX_QUERY} of them, one drawn at random per cell "
-                              "of a cubic grid and frame, weighted by the cell's vertex count (an unbiased estimate "
-                              "of BOP's mean over all, seeded by scene and image id)"),
+                              f"nearest neighbour; the means run over at most {MAX_QUERY} of them, one drawn at "
+                              "random per cell of a cubic grid and frame, weighted by the cell's vertex count (an "
+                              "unbiased estimate of BOP's mean over all, seeded by scene and image id)"),
         "versions": _versions(),
         "git_commit": _git_commit(),
     }
