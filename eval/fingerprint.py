@@ -15,7 +15,8 @@ import json
 from pathlib import Path
 
 SCENE_JSONS = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_robot.json")
-SCORING = ("model_eval", "metric")  # what only the scoring reads, never the method
+SCORING = {"model_eval": "the evaluation model (models_eval/)",  # what only the scoring reads, never the method
+           "metric": "the metric's query rule"}
 
 
 def _sha256(path: Path) -> str:
@@ -67,10 +68,7 @@ def differences(before: dict, now: dict) -> list[str]:
         if changed:
             more = f" and {len(changed) - 3} more" if len(changed) > 3 else ""
             said.append(f"{label}{', '.join(Path(c).name if kind == 'method_inputs' else c for c in changed[:3])}{more}")
-    if before.get("model_eval") != now["model_eval"]:
-        said.append("the evaluation model (models_eval/)")
-    if before.get("metric") != now["metric"]:
-        said.append("the metric's query rule")
+    said.extend(label for key, label in SCORING.items() if before.get(key) != now[key])
     return said
 
 

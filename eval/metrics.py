@@ -38,7 +38,6 @@ def _chunks(ok: np.ndarray) -> list[np.ndarray]:
 
 def _frame_points(points: np.ndarray, chunk: np.ndarray) -> np.ndarray:
     """(1 or n, q, 3): the model points shared by all frames, or each frame's own draw."""
-    points = np.asarray(points, dtype=float)
     return points[chunk] if points.ndim == 3 else points[None]
 
 
@@ -51,7 +50,7 @@ def add(T_est, T_gt, points: np.ndarray, weights: np.ndarray | None = None) -> n
     """ADD (m): mean distance between the model points under the two poses. `points` are (q, 3) for every
     frame or (n, q, 3) drawn per frame, with `weights` (q,) summing to 1 when they are stratified draws
     (`eval.model_points.EvalModel.query_points`)."""
-    T_est, T_gt = _stack(T_est), _stack(T_gt)
+    T_est, T_gt, points = _stack(T_est), _stack(T_gt), np.asarray(points, dtype=float)
     out = np.full(len(T_gt), np.inf)
     for chunk in _chunks(np.flatnonzero(_valid(T_est))):
         D = T_est[chunk] - T_gt[chunk]  # (R_e - R_g) p + (t_e - t_g), without posing both copies
@@ -70,8 +69,8 @@ def adds(T_est, T_gt, points: np.ndarray, tree: KDTree | None = None, weights: n
     the estimate's model frame, inv(T_est) @ T_gt = I + R_est^T (T_gt - T_est), and one tree serves every
     frame. Written as I + a difference, a perfect estimate scores exactly 0.
     """
-    T_est, T_gt = _stack(T_est), _stack(T_gt)
-    tree = tree if tree is not None else model_tree(np.asarray(points).reshape(-1, 3))
+    T_est, T_gt, points = _stack(T_est), _stack(T_gt), np.asarray(points, dtype=float)
+    tree = tree if tree is not None else model_tree(points)
     out = np.full(len(T_gt), np.inf)
     for chunk in _chunks(np.flatnonzero(_valid(T_est))):
         Rt, D = np.swapaxes(T_est[chunk, :3, :3], 1, 2), T_gt[chunk] - T_est[chunk]

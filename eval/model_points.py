@@ -27,6 +27,12 @@ from syneepose.errors import UserError
 MODELS_EVAL = "models_eval"
 MAX_QUERY = 1000  # cells, one query vertex drawn in each per frame: tests/test_eval_metrics.py, benchmarks/
 QUERY_SEED = 0  # with the frame's key, seeds the frame's draw: a frame scores the same whatever is scored with it
+QUERY_RULE = {"models": MODELS_EVAL, "max_query": MAX_QUERY, "query": "one vertex drawn per grid cell and frame",
+              "query_seed": QUERY_SEED}  # in each scene's fingerprint: a changed rule re-scores stored estimates
+QUERY_RULE_TEXT = (f"every vertex of {MODELS_EVAL}/obj_XXXXXX.ply (mm -> m) is searched for the ADD-S nearest "
+                   f"neighbour; the means run over at most {MAX_QUERY} of them, one drawn at random per cell of a "
+                   "cubic grid and frame, weighted by the cell's vertex count (an unbiased estimate of BOP's mean "
+                   "over all, seeded by scene and image id)")
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ from eval.methods import get_method
 from eval.methods.base import Estimate, Observation
 from eval.fingerprint import differences, only_scoring_changed, read_fingerprint, scene_fingerprint
 from eval.metrics import add, adds, rotation_error_deg, translation_error_mm
-from eval.model_points import MAX_QUERY, MODELS_EVAL, QUERY_SEED, EvalModel, load_eval_model
+from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
 from syneepose.bop import (SceneMeta, read_frame, read_gt_poses, read_png, read_scene, scene_dirs, split_name,
@@ -179,6 +179,18 @@ def _scene_files(out: Path, scene_id: int) -> tuple[Path, Path, Path]:
     return stem.with_suffix(".results.csv"), stem.with_suffix(".errors.csv"), stem.with_suffix(".fingerprint.json")
 
 
+def _store_scene(out: Path, scene_id: int, fingerprint: dict, errors: list[FrameErrors],
+                 results: list[BopResult] | None = None) -> None:
+    """A scene's rows (its results too when the method ran), the fingerprint last: an interrupted write leaves
+    no fingerprint, so the scene is done again."""
+    results_csv, errors_csv, fp_path = _scene_files(out, scene_id)
+    fp_path.unlink(missing_ok=True)
+    if results is not None:
+        write_results(results_csv, results)
+    write_errors(errors_csv, errors)
+    write_atomic(fp_path, json.dumps(fingerprint, indent=1).encode())
+
+
 def _method_inputs(method, scene: Scene) -> list[Path]:
     """The files a method reads besides the frames (e.g. FEEPE's template set), if it says."""
     inputs = getattr(method, "inputs", None)
@@ -260,12 +272,10 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     split = split_name(dataset)
     selected = find_scenes(dataset / split, scenes, robots)
     identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir}
-    metric = {"models": MODELS_EVAL, "max_query": MAX_QUERY, "query": "one vertex drawn per grid cell and frame",
-              "query_seed": QUERY_SEED}
     models = {obj_id: load_eval_model(dataset, obj_id) for obj_id in sorted({s.meta.obj_id for s in selected})}
     _claim(out, identity)
     fingerprints = {s.scene_id: scene_fingerprint(s.path, s.im_ids, depth_dir, models[s.meta.obj_id].sha256,
-                                                  _method_inputs(method, s), metric) for s in selected}
+                                                  _method_inputs(method, s), QUERY_RULE) for s in selected}
     todo, rescore, said = [], [], {}
     for scene in selected:
         changed, scoring_only = _stale(out, scene, fingerprints[scene.scene_id])
@@ -277,21 +287,14 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
         how = ("stored estimates are scored again" if scoring_only else "run and scored again")
         print(f"eval: {_scene_ids(ids)}: {changed} changed since the last scoring; {how}", file=sys.stderr)
     for scene in rescore:
-        _, errors_csv, fp_path = _scene_files(out, scene.scene_id)
         errors = rescore_scene(out, scene, models[scene.meta.obj_id])
-        fp_path.unlink()
-        write_errors(errors_csv, errors)
-        write_atomic(fp_path, json.dumps(fingerprints[scene.scene_id], indent=1).encode())
+        _store_scene(out, scene.scene_id, fingerprints[scene.scene_id], errors)
     bar = tqdm(total=sum(len(s.im_ids) for s in selected), unit="frame", desc=f"eval {method_name}",
                initial=sum(len(s.im_ids) for s in selected) - sum(len(s.im_ids) for s in todo))
     try:
         for scene in todo:
             results, errors = run_scene(method, scene, depth_dir, models[scene.meta.obj_id], bar)
-            results_csv, errors_csv, fp_path = _scene_files(out, scene.scene_id)
-            fp_path.unlink(missing_ok=True)
-            write_results(results_csv, results)
-            write_errors(errors_csv, errors)
-            write_atomic(fp_path, json.dumps(fingerprints[scene.scene_id], indent=1).encode())
+            _store_scene(out, scene.scene_id, fingerprints[scene.scene_id], errors, results)
     except BaseException:
         bar.leave = False
         raise
@@ -316,10 +319,7 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
         "model_points": {
             str(obj_id): {"n_vertices": len(m.vertices), "n_query": m.n_query, "subsampled": m.subsampled,
                           "sha256": m.sha256} for obj_id, m in models.items()},
-        "model_points_rule": (f"every vertex of {MODELS_EVAL}/obj_XXXXXX.ply (mm -> m) is searched for the ADD-S "
-                              f"nearest neighbour; the means run over at most {MAX_QUERY} of them, one drawn at "
-                              "random per cell of a cubic grid and frame, weighted by the cell's vertex count (an "
-                              "unbiased estimate of BOP's mean over all, seeded by scene and image id)"),
+        "model_points_rule": QUERY_RULE_TEXT,
         "versions": _versions(),
         "git_commit": _git_commit(),
     }

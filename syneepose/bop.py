@@ -342,11 +342,15 @@ def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
     return meta, im_ids
 
 
+def _T_cam_ee(gt: dict) -> np.ndarray:
+    """The pose of a scene_gt.json record in metres."""
+    return make_T(np.reshape(gt["cam_R_m2c"], (3, 3)), np.array(gt["cam_t_m2c"]) / 1000.0)
+
+
 def read_gt_poses(scene_dir: Path) -> dict[int, np.ndarray]:
     """T_cam_ee (metres) of every frame in scene_gt.json, without reading any image."""
     gt = json.loads((Path(scene_dir) / "scene_gt.json").read_text())
-    return {int(k): make_T(np.reshape(v[GT_ID]["cam_R_m2c"], (3, 3)), np.array(v[GT_ID]["cam_t_m2c"]) / 1000.0)
-            for k, v in gt.items()}
+    return {int(k): _T_cam_ee(v[GT_ID]) for k, v in gt.items()}
 
 
 def read_frame(scene_dir: Path, im_id: int) -> Frame:
@@ -365,6 +369,6 @@ def read_frame(scene_dir: Path, im_id: int) -> Frame:
                  depth=read_png(paths["depth"]) * (camera["depth_scale"] / 1000.0),
                  mask=read_png(paths["mask"]) > 127, mask_visib=read_png(paths["mask_visib"]) > 127,
                  K=np.array(camera["cam_K"], dtype=float).reshape(3, 3),
-                 T_cam_ee=make_T(np.reshape(gt["cam_R_m2c"], (3, 3)), np.array(gt["cam_t_m2c"]) / 1000.0),
+                 T_cam_ee=_T_cam_ee(gt),
                  joint_positions=np.array(robot["joint_positions"], dtype=float),
                  T_base_ee=np.array(robot["T_base_ee"], dtype=float), **extras)
