@@ -20,7 +20,7 @@ _trapezoid = getattr(np, "trapezoid", None) or np.trapz  # NumPy 2 renamed trapz
 
 def model_tree(points: np.ndarray) -> KDTree:
     """The ADD-S search tree over every model vertex. pykdtree answers these 3-D queries exactly as
-    scipy's cKDTree does, about twice as fast (OpenMP; benchmarks/metrics.py)."""
+    scipy's cKDTree does, 1.2-1.8x as fast in probes on the Shadow Hand (OpenMP)."""
     return KDTree(np.ascontiguousarray(points, dtype=float))
 
 
@@ -77,7 +77,7 @@ def adds(T_est, T_gt, points: np.ndarray, tree: KDTree | None = None, weights: n
         P = _frame_points(points, chunk)
         query = P + P @ np.swapaxes(Rt @ D[:, :3, :3], 1, 2) + (Rt @ D[:, :3, 3:])[:, None, :, 0]
         # point-major order: a point's copies in neighbouring frames lie close together, so successive
-        # queries walk the same tree nodes (about twice as fast as frame-major, benchmarks/metrics.py)
+        # queries walk the same tree nodes (0.29 s against 0.51-0.67 s frame-major, 256 Shadow Hand frames)
         dist, _ = tree.query(np.ascontiguousarray(np.swapaxes(query, 0, 1).reshape(-1, 3)))
         out[chunk] = _mean(dist.reshape(-1, len(chunk)).T, weights)
     return out
