@@ -36,7 +36,7 @@ from syneepose.bop import (SceneMeta, read_frame, read_gt_poses, read_png, read_
                           write_atomic)
 from syneepose.errors import UserError
 
-METHOD_OPTIONS = ("variant", "icp", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
+METHOD_OPTIONS = ("variant", "icp", "refine", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
                   "templates_dir", "bow_assignment", "hand_eye", "results", "name")  # CLI options handed to the method's constructor
 NO_POSE = np.full((4, 4), np.nan)
 
@@ -337,6 +337,9 @@ def main(argv=None) -> int:
     parser.add_argument("--backbone", help="method option: feature backbone")
     parser.add_argument("--icp", action="store_const", const=True,
                         help="feepe option: add depth alignment (our extension, not in the paper)")
+    parser.add_argument("--refine", choices=["none", "silhouette"],
+                        help="feepe option: silhouette refinement of the calibration over the key frames' masks "
+                             "(our extension, not in the paper; default none)")
     parser.add_argument("--layer", type=int, help="feepe option: DINOv2 block, counted from 0 as FoundPose (paper: 19 of ViT-L's 0..23)")
     parser.add_argument("--n-templates", type=int, help="feepe option: template set by count (default: largest)")
     parser.add_argument("--k-r", type=int, help="feepe option: reference templates per frame (paper: 5)")

@@ -62,6 +62,7 @@ def load_runs(folders: list[Path]) -> list[Run]:
         method = run.options.get("name") or s["method"].upper()
         if run.options.get("variant"):
             method += f" {run.options['variant']}" + (" + depth ICP (ours)" if run.options.get("icp") else "")
+            method += " + silhouette (ours)" if run.options.get("refine") == "silhouette" else ""
         for key, paper, title in (("k_r", 5, "K_r"), ("k_f", 8, "K_f")):
             if run.options.get(key) not in (None, paper):
                 method += f" {title}={run.options[key]}"
@@ -148,6 +149,7 @@ def hyperparameters(runs: list[Run]) -> Table:
                  for value, (add, adds, speed) in reported.HYPERPARAMETERS[option].items()]
         others = {k: v for k, v in PAPER_CHOICES.items() if k != option}
         full = [r for r in runs if r.options.get("variant") in (None, "D") and not r.options.get("icp")
+                and r.options.get("refine") in (None, "none")
                 and all(r.options.get(k) in (None, v) for k, v in others.items())]
         rows += [[title, str(value), run.label, _num(run.summary["average"]["add@1cm"]),
                   _num(run.summary["average"]["adds@1cm"]), _num(run.summary["ms_per_frame"], 0)]

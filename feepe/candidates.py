@@ -40,6 +40,7 @@ class FrameCandidates:
     n_features: int
     timings: dict = field(default_factory=dict)  # ms per stage
     cloud: np.ndarray | None = None  # (N, 3) masked depth points, camera frame (depth alignment only)
+    silhouette: object | None = None  # feepe.silhouette.MaskView of the frame (silhouette refinement only)
 
 
 @dataclass

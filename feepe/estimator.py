@@ -2,6 +2,8 @@
 
 Variants (the paper's ablation): A = PnP only (best candidate by inliers); B = + optimisation over the
 current frame's candidates; C = + key frames from the memory pool; D = + symmetry disambiguation (full).
+Two extensions of ours, off in the paper's variants: depth alignment (`icp`, feepe/icp.py) and silhouette
+refinement (`refine="silhouette"`, feepe/silhouette.py).
 """
 
 from __future__ import annotations
@@ -18,12 +20,14 @@ from feepe.candidates import FrameCandidates, SingleFrameOptions, frame_candidat
 from feepe.icp import SurfaceModel, associate, observed_cloud
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
-from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
+from feepe.optimize import Observations, OptimizeOptions, optimize, reprojection_px, stack
+from feepe.silhouette import SilhouetteModel, contour_term, mask_view, mean_iou
 from feepe.symmetry import consensus
 from syneepose.errors import UserError
 from syneepose.transforms import inv_T
 
 VARIANTS = ("A", "B", "C", "D")
+REFINEMENTS = ("none", "silhouette")
 
 
 @dataclass
@@ -36,6 +40,11 @@ class FeepeOptions:
     icp_iterations: int = 5
     icp_gate_m: float = 0.02
     icp_sigma_m: float = 0.002
+    refine: str = "none"  # "silhouette": our multi-frame mask alignment (feepe/silhouette.py)
+    silhouette_sigmas_px: tuple = (4.0, 2.0, 1.0)  # coarse to fine: the robust kernel's scale per stage
+    silhouette_rounds: int = 3  # contour re-extractions per stage
+    silhouette_starts: int = 3  # starting calibrations refined; the best mask IoU is kept
+    silhouette_switch_iou: float = 0.05  # another start must beat the last calibration's IoU by this to be tried
     single: SingleFrameOptions = field(default_factory=SingleFrameOptions)
     optimize: OptimizeOptions = field(default_factory=OptimizeOptions)
 
@@ -44,6 +53,10 @@ class FeepeOptions:
             raise UserError(f"FEEPE variant {self.variant!r} unknown; choose one of {', '.join(VARIANTS)}")
         if self.icp and self.variant == "A":
             raise UserError("variant A is PnP only; depth alignment (icp) needs variant B, C or D")
+        if self.refine not in REFINEMENTS:
+            raise UserError(f"refinement {self.refine!r} unknown; choose one of {', '.join(REFINEMENTS)}")
+        if self.refine != "none" and self.variant == "A":
+            raise UserError("variant A is PnP only; silhouette refinement needs variant B, C or D")
 
 
 @dataclass
@@ -56,29 +69,41 @@ class FrameResult:
     timings: dict  # ms per stage and "total"
 
 
+SILHOUETTE_OPTIONS = ("refine", "silhouette_sigmas_px", "silhouette_rounds", "silhouette_starts",
+                      "silhouette_switch_iou")
+
+
 def describe(opts: FeepeOptions, backbone) -> dict:
-    """Every option that changes the estimates, JSON-able."""
-    return {**asdict(opts), "backbone": backbone.options()}
+    """Every option that changes the estimates, JSON-able. The refinement's options appear only when it is
+    on: they change nothing otherwise, and runs stored before it existed keep their identity."""
+    out = asdict(opts)
+    if opts.refine == "none":
+        out = {k: v for k, v in out.items() if k not in SILHOUETTE_OPTIONS}
+    return {**out, "backbone": backbone.options()}
 
 
 class Estimator:
     def __init__(self, bank: TemplateBank, backbone, options: FeepeOptions | None = None,
-                 model: SurfaceModel | None = None):
-        self.bank, self.backbone, self.model = bank, backbone, model
+                 model: SurfaceModel | None = None, silhouette: SilhouetteModel | None = None):
+        self.bank, self.backbone, self.model, self.silhouette = bank, backbone, model, silhouette
         self.opts = options or FeepeOptions()
         if self.opts.icp and model is None:
             raise UserError("depth alignment (icp) needs the end-effector model: pass model=SurfaceModel.from_ply(...)")
+        if self.opts.refine == "silhouette" and silhouette is None:
+            raise UserError("silhouette refinement needs the end-effector model: "
+                            "pass silhouette=SilhouetteModel.from_ply(...)")
         self.reset()
 
     @classmethod
     def from_templates(cls, folder: Path, backbone: str = DEFAULT_BACKBONE, options: FeepeOptions | None = None,
                        cache_dir: Path | None = None, model_path: Path | None = None,
                        **backbone_kwargs) -> "Estimator":
-        """model_path (the BOP .ply, mm) is needed only for the depth-alignment extension."""
+        """model_path (the BOP .ply, mm) is needed only for our extensions (icp, silhouette refinement)."""
         net = get_backbone(backbone, **backbone_kwargs)
         opts = options or FeepeOptions()
-        model = SurfaceModel.from_ply(model_path) if model_path else None
-        return cls(onboard(folder, net, opts.single.pad, cache_dir=cache_dir), net, opts, model)
+        model = SurfaceModel.from_ply(model_path) if model_path and opts.icp else None
+        silhouette = SilhouetteModel.from_ply(model_path) if model_path and opts.refine == "silhouette" else None
+        return cls(onboard(folder, net, opts.single.pad, cache_dir=cache_dir), net, opts, model, silhouette)
 
     def options(self) -> dict:
         return {**describe(self.opts, self.backbone), "n_templates": len(self.bank)}
@@ -98,6 +123,8 @@ class Estimator:
             found = FrameCandidates(np.eye(3), [], 0, {})
         if self.opts.icp:
             found.cloud = observed_cloud(np.asarray(depth, float), np.asarray(mask, bool), K)
+        if self.opts.refine == "silhouette":
+            found.silhouette = mask_view(mask, K)
         timings = dict(found.timings)
         t0 = time.perf_counter()
         T_cam_base, score, n_keys = self._estimate(found, T_base_ee)
@@ -134,6 +161,8 @@ class Estimator:
         T, _ = optimize(T_init, obs, opts.optimize)
         if opts.icp:
             T = self._align_depth(T, obs, [(T_b, f.cloud) for T_b, f in views])
+        if opts.refine == "silhouette":
+            T = self._refine_silhouette(self._starts(T, frames), [(T_b, f.silhouette) for T_b, f in views])
         score = float(np.sum(reprojection_px(T, stack(frames[:1])) <= opts.single.pnp_threshold_px))
         return T, score, len(frames) - 1
 
@@ -147,6 +176,49 @@ class Estimator:
             T = T_new
             if moved < 1e-5:
                 break
+        return T
+
+
+    def _starts(self, T: np.ndarray, frames) -> list[np.ndarray]:
+        """The optimised calibration and the current frame's best candidates' (most inliers first)."""
+        T_base_ee, _, cands = frames[0]
+        best = sorted(cands, key=lambda c: -c.n_inliers)[:self.opts.silhouette_starts]
+        return [T] + [c.T_cam_ee @ inv_T(T_base_ee) for c in best]
+
+    def _refine_silhouette(self, starts: list[np.ndarray], frames: list) -> np.ndarray:
+        """Online, the last calibration refined at the finest scale is kept unless another start explains
+        the current mask clearly better; then every start is scored on all key frames and the best ones
+        are refined coarse to fine. The result with the best mean mask IoU wins."""
+        opts, model = self.opts, self.silhouette
+        sigmas = opts.silhouette_sigmas_px
+        current = frames[:1]
+        warm = None
+        if self.T_cam_base is not None:
+            warm = self._descend(self.T_cam_base, frames, sigmas[-1:])
+            here = mean_iou(model, warm, current)
+            if max(mean_iou(model, T, current) for T in starts) <= here + opts.silhouette_switch_iou:
+                return warm
+        scored = sorted(((mean_iou(model, T, frames), i) for i, T in enumerate(starts)), reverse=True)
+        best_iou, best = (mean_iou(model, warm, frames), warm) if warm is not None else (-1.0, None)
+        for _, i in scored[:opts.silhouette_starts]:
+            T = self._descend(starts[i], frames, sigmas)
+            score = mean_iou(model, T, frames)
+            if score > best_iou:
+                best_iou, best = score, T
+        return best
+
+    def _descend(self, T: np.ndarray, frames: list, sigmas) -> np.ndarray:
+        """Gauss-Newton on the contour term, the contour re-extracted between solves (as ICP re-associates)."""
+        no_matches = Observations(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 4)), np.zeros((0, 3)))
+        inner = OptimizeOptions(max_iterations=5)
+        for sigma in sigmas:
+            for _ in range(self.opts.silhouette_rounds):
+                term = contour_term(self.silhouette, T, frames, sigma, step_px=max(1.0, sigma / 2))
+                T_new, _ = optimize(T, no_matches, inner, terms=[term])
+                moved = np.linalg.norm(T_new[:3, 3] - T[:3, 3])
+                T = T_new
+                if moved < 1e-4:
+                    break
         return T
 
 

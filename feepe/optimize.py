@@ -10,6 +10,7 @@ pixel error like a `sigma_m` depth error and the Cauchy loss has unit scale.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -48,9 +49,28 @@ def _skew_rows(Q: np.ndarray) -> np.ndarray:
                       np.stack([-Q[:, 1], Q[:, 0], z], 1)], 1)
 
 
-def _d_point(Q: np.ndarray) -> np.ndarray:
+def point_jacobian(Q: np.ndarray) -> np.ndarray:
     """d(exp(w) Q + t + tau)/d(w, tau) at 0, shape (N, 3, 6)."""
     return np.concatenate([_skew_rows(Q), np.broadcast_to(np.eye(3), (len(Q), 3, 3))], 2)
+
+
+def project(P: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera points (N, 3) with per-point (fx, fy, cx, cy) (N, 4) -> pixels (N, 2) and d uv / dP (N, 2, 3)."""
+    z = np.maximum(P[:, 2], 1e-6)
+    uv = np.stack([K[:, 0] * P[:, 0] / z + K[:, 2], K[:, 1] * P[:, 1] / z + K[:, 3]], 1)
+    dpi = np.zeros((len(P), 2, 3))
+    dpi[:, 0, 0] = K[:, 0] / z
+    dpi[:, 0, 2] = -K[:, 0] * P[:, 0] / z**2
+    dpi[:, 1, 1] = K[:, 1] / z
+    dpi[:, 1, 2] = -K[:, 1] * P[:, 1] / z**2
+    return uv, dpi
+
+
+class Term(Protocol):
+    """An extra residual block over the camera-to-base pose, already divided by its scale."""
+
+    def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """(N, k) residuals and, when asked, their (N, k, 6) Jacobian in the left perturbation of `_step`."""
 
 
 class _Problem:
@@ -58,8 +78,8 @@ class _Problem:
     depth) and, with depth alignment, point-to-plane (1 row per associated depth point)."""
 
     def __init__(self, obs: Observations, sigma_px: float, sigma_m: float, w3d: float,
-                 planes: PlaneTerms | None = None, k_plane: float = 0.0):
-        self.obs, self.sigma_px, self.k3 = obs, sigma_px, w3d / sigma_m
+                 planes: PlaneTerms | None = None, k_plane: float = 0.0, terms: Sequence[Term] = ()):
+        self.obs, self.sigma_px, self.k3, self.terms = obs, sigma_px, w3d / sigma_m, terms
         self.depth = np.isfinite(obs.observed_cam).all(1) if w3d > 0 else np.zeros(len(obs.uv), bool)
         self.planes = planes if planes is not None and k_plane > 0 else None
         self.k_plane = k_plane
@@ -67,27 +87,23 @@ class _Problem:
     def errors(self, T: np.ndarray, jacobian: bool = False) -> tuple[list, list]:
         Q = self.obs.base_points @ T[:3, :3].T
         P = Q + T[:3, 3]
-        K = self.obs.K
-        z = np.maximum(P[:, 2], 1e-6)
-        e2 = (np.stack([K[:, 0] * P[:, 0] / z + K[:, 2], K[:, 1] * P[:, 1] / z + K[:, 3]], 1) - self.obs.uv)
+        uv, dpi = project(P, self.obs.K)
+        e2 = uv - self.obs.uv
         blocks = [e2 / self.sigma_px, (P[self.depth] - self.obs.observed_cam[self.depth]) * self.k3]
         if self.planes is not None:
             pl = self.planes
             Qp = pl.base_points @ T[:3, :3].T
             n = pl.base_normals @ T[:3, :3].T
             blocks.append((np.sum(n * (pl.target_cam - Qp - T[:3, 3]), 1) * self.k_plane)[:, None])
+        extra = [term.residuals(T, jacobian) for term in self.terms]
+        blocks += [e for e, _ in extra]
         if not jacobian:
             return blocks, []
-        dP = _d_point(Q)
-        dpi = np.zeros((len(P), 2, 3))
-        dpi[:, 0, 0] = K[:, 0] / z
-        dpi[:, 0, 2] = -K[:, 0] * P[:, 0] / z**2
-        dpi[:, 1, 1] = K[:, 1] / z
-        dpi[:, 1, 2] = -K[:, 1] * P[:, 1] / z**2
+        dP = point_jacobian(Q)
         jacobians = [(dpi @ dP) / self.sigma_px, dP[self.depth] * self.k3]
         if self.planes is not None:  # the normal is held fixed within a step, as usual for point-to-plane
-            jacobians.append(-(n[:, None, :] @ _d_point(Qp)) * self.k_plane)
-        return blocks, jacobians
+            jacobians.append(-(n[:, None, :] @ point_jacobian(Qp)) * self.k_plane)
+        return blocks, jacobians + [J for _, J in extra]
 
 
 def _cost(blocks: list) -> float:
@@ -111,17 +127,18 @@ class OptimizeOptions:
 
 
 def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions, planes: PlaneTerms | None = None,
-             plane_sigma_m: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+             plane_sigma_m: float = 0.002, terms: Sequence[Term] = ()) -> tuple[np.ndarray, np.ndarray]:
     """The calibration minimising sum rho(||e||^2), rho = Cauchy, and its reprojection errors (px).
 
     Iteratively reweighted Gauss-Newton with Levenberg damping on analytic Jacobians: the weights
     1 / (1 + ||e||^2) are rho's derivative, so each step is a Gauss-Newton step of the robust cost.
-    `planes` adds the depth-alignment term (point-to-plane distances over `plane_sigma_m`).
+    `planes` adds the depth-alignment term (point-to-plane distances over `plane_sigma_m`); `terms` adds
+    any other residual block (the silhouette term).
     """
-    if len(obs.uv) == 0 and (planes is None or len(planes.target_cam) == 0):
+    if len(obs.uv) == 0 and (planes is None or len(planes.target_cam) == 0) and not terms:
         return T_init, np.zeros(0)
     w3d = float(np.sqrt(opts.lam)) if opts.lam > 0 else 0.0
-    problem = _Problem(obs, opts.sigma_px, opts.sigma_m, w3d, planes, 1.0 / plane_sigma_m)
+    problem = _Problem(obs, opts.sigma_px, opts.sigma_m, w3d, planes, 1.0 / plane_sigma_m, terms)
     T, damping = T_init.copy(), 1e-3
     blocks, jacobians = problem.errors(T, jacobian=True)
     cost = _cost(blocks)

@@ -18,6 +18,7 @@ from feepe.candidates import SingleFrameOptions
 from feepe.estimator import Estimator, FeepeOptions, describe
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
+from feepe.silhouette import SilhouetteModel
 from syneepose.bop import SceneMeta
 from syneepose.errors import UserError
 from syneepose.templates import find_template_set
@@ -26,10 +27,12 @@ from syneepose.templates import find_template_set
 class Feepe:
     def __init__(self, variant: str = "D", backbone: str = DEFAULT_BACKBONE, layer: int | None = None,
                  n_templates: int | None = None, k_r: int = 5, k_f: int = 8, backbone_weights: str | None = None,
-                 templates_dir: str | None = None, icp: bool = False, bow_assignment: str = "foundpose"):
+                 templates_dir: str | None = None, icp: bool = False, bow_assignment: str = "foundpose",
+                 refine: str = "none"):
         if bow_assignment not in ("foundpose", "gaussian"):
             raise UserError(f"--bow-assignment {bow_assignment!r}: foundpose (FoundPose's) or gaussian (ours)")
-        self.opts = FeepeOptions(variant=variant, k_f=k_f, icp=icp, single=SingleFrameOptions(k_r=k_r))
+        self.opts = FeepeOptions(variant=variant, k_f=k_f, icp=icp, refine=refine,
+                                 single=SingleFrameOptions(k_r=k_r))
         self.bow_assignment = bow_assignment
         kwargs = {}
         if backbone.startswith("dinov2"):
@@ -43,16 +46,17 @@ class Feepe:
 
     def options(self) -> dict:
         """The table keys first (variant, backbone, layer, n_templates, k_r, k_f), then every detail."""
-        return {"variant": self.opts.variant, "icp": self.opts.icp, "backbone": self.backbone.name,
+        refine = {"refine": self.opts.refine} if self.opts.refine != "none" else {}  # absent: old runs resume
+        return {"variant": self.opts.variant, "icp": self.opts.icp, **refine, "backbone": self.backbone.name,
                 "layer": self.backbone.options().get("layer"), "n_templates": self.n_templates,
                 "k_r": self.opts.single.k_r, "k_f": self.opts.k_f, "bow_assignment": self.bow_assignment,
                 "estimator": describe(self.opts, self.backbone)}
 
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
-        """The template set of the scene's end-effector, and the model `--icp` aligns to depth."""
+        """The template set of the scene's end-effector, and the model `--icp` / `--refine` align."""
         root = Path(self.templates_dir) if self.templates_dir else Path(scene_dir).parents[1] / "templates"
         found = [find_template_set(root, meta.end_effector, self.n_templates)]
-        if self.opts.icp:
+        if self.opts.icp or self.opts.refine != "none":
             found.append(Path(scene_dir).parents[1] / "models" / f"obj_{meta.obj_id:06d}.ply")
         return found
 
@@ -61,8 +65,9 @@ class Feepe:
         if ee not in self._estimators:
             folder, *model_ply = self.inputs(meta, scene_dir)
             bank = onboard(folder, self.backbone, self.opts.single.pad, {"assignment": self.bow_assignment})
-            model = SurfaceModel.from_ply(model_ply[0]) if model_ply else None
-            self._estimators[ee] = Estimator(bank, self.backbone, self.opts, model)
+            model = SurfaceModel.from_ply(model_ply[0]) if self.opts.icp else None
+            silhouette = SilhouetteModel.from_ply(model_ply[0]) if self.opts.refine == "silhouette" else None
+            self._estimators[ee] = Estimator(bank, self.backbone, self.opts, model, silhouette)
         self._current = self._estimators[ee]
         self._current.reset()
 

@@ -1,0 +1,209 @@
+"""Silhouette alignment (our extension, issue 13; not in the paper): the end-effector model's occluding
+contour, projected under the shared camera-to-base pose, laid onto each key frame's observed mask.
+
+The mask is the one input no depth noise touches. Each key frame keeps the signed distance to its mask
+boundary; the model's outer contour points (rim edges of the mesh whose outside neighbour pixel misses
+the model, found by ray casting) are pulled to distance zero. Contour points are exact mesh geometry,
+not pixel centres of a rendered mask, so the fit carries no half-pixel shrink.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import trimesh
+from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+from feepe.optimize import point_jacobian, project
+from syneepose.errors import UserError
+from syneepose.transforms import inv_T, transform_points
+
+BORDER_PX = 2  # contour points this close to the image border are dropped: the mask is cut there
+
+
+@dataclass
+class MaskView:
+    """One frame's observed mask as a field: signed distance to its boundary (px, > 0 outside)."""
+    sdt: np.ndarray  # (H, W) float32
+    grad: np.ndarray  # (H, W, 2) float32, d sdt / d(u, v)
+    mask: np.ndarray  # (H, W) bool
+    K: np.ndarray  # (3, 3) full-image intrinsics
+
+
+def mask_view(mask: np.ndarray, K: np.ndarray) -> MaskView:
+    """The zero level lies half-way between the last mask pixel centre and the first background one."""
+    m = np.asarray(mask, bool).astype(np.uint8)
+    outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    sdt = np.where(m > 0, 0.5 - inside, outside - 0.5).astype(np.float32)
+    gu = cv2.Sobel(sdt, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
+    gv = cv2.Sobel(sdt, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
+    return MaskView(sdt, np.stack([gu, gv], -1), m > 0, np.asarray(K, float))
+
+
+def sample(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of an (H, W) or (H, W, C) image at sub-pixel (u, v); uv inside the image."""
+    h, w = img.shape[:2]
+    u = np.clip(uv[:, 0], 0, w - 1.001)
+    v = np.clip(uv[:, 1], 0, h - 1.001)
+    u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
+    a, b = u - u0, v - v0
+    if img.ndim == 3:
+        a, b = a[:, None], b[:, None]
+    return ((1 - a) * (1 - b) * img[v0, u0] + a * (1 - b) * img[v0, u0 + 1]
+            + (1 - a) * b * img[v0 + 1, u0] + a * b * img[v0 + 1, u0 + 1])
+
+
+class SilhouetteModel:
+    """The mesh's edges that can be on an occluding contour, and a ray caster for what is in front."""
+
+    def __init__(self, mesh: trimesh.Trimesh):
+        self.mesh = mesh
+        self.rays = RayMeshIntersector(mesh)
+        normals = mesh.face_normals
+        pairs = mesh.face_adjacency
+        # an edge with one face (open meshes) is always a candidate; outward is away from its face
+        border = trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)
+        b_edges, b_face = mesh.edges_sorted[border], mesh.edges_face[border]
+        mid = mesh.vertices[b_edges].mean(1)
+        along = mesh.vertices[b_edges[:, 1]] - mesh.vertices[b_edges[:, 0]]
+        away = mid - mesh.triangles_center[b_face]
+        away -= along * (np.sum(away * along, 1) / np.maximum(np.sum(along * along, 1), 1e-18))[:, None]
+        self.edges = np.concatenate([mesh.face_adjacency_edges, b_edges]).astype(int)
+        self.n1 = np.concatenate([normals[pairs[:, 0]], normals[b_face]])
+        self.n2 = np.concatenate([normals[pairs[:, 1]], -normals[b_face]])
+        self.outward = np.concatenate([normals[pairs[:, 0]] + normals[pairs[:, 1]], away])
+        mid = mesh.vertices[self.edges].mean(1)
+        self.o1, self.o2 = np.sum(self.n1 * mid, 1), np.sum(self.n2 * mid, 1)  # n . mid, for the rim test
+        self.radius = float(np.linalg.norm(mesh.vertices - mesh.bounds.mean(0), axis=1).max())
+
+    @classmethod
+    def from_ply(cls, path: Path, scale: float = 0.001) -> "SilhouetteModel":
+        """BOP models are in mm (scale 0.001)."""
+        path = Path(path)
+        if not path.is_file():
+            raise UserError(f"{path}: no such model; silhouette refinement needs the end-effector's BOP model")
+        mesh = trimesh.load(path, force="mesh")  # processed: vertices merged, so edges know both faces
+        mesh.apply_scale(scale)
+        return cls(mesh)
+
+    def contour(self, T_cam_ee: np.ndarray, K: np.ndarray, shape: tuple[int, int],
+                step_px: float = 1.0, probe_px: float = 0.3) -> np.ndarray:
+        """Model-frame points on the outer occluding contour of the model seen at `T_cam_ee`, about one
+        per `step_px` of image length."""
+        T_ee_cam = inv_T(T_cam_ee)
+        eye = T_ee_cam[:3, 3]
+        rim = np.flatnonzero((self.o1 > self.n1 @ eye) != (self.o2 > self.n2 @ eye))  # one face seen, one not
+        V = self.mesh.vertices
+        a, b = V[self.edges[rim, 0]], V[self.edges[rim, 1]]
+        ua, ub = _project(transform_points(T_cam_ee, a), K), _project(transform_points(T_cam_ee, b), K)
+        # most rims lie inside the silhouette: keep edges that come near the rendered mask's boundary
+        near = cv2.distanceTransform(self.render(T_cam_ee, K, shape).astype(np.uint8), cv2.DIST_L2, 3) <= 2.5
+        near = np.pad(near, 1, constant_values=True)
+        keep = np.zeros(len(rim), bool)
+        for uv in (ua, ub, 0.5 * (ua + ub)):
+            iu = np.clip(np.round(uv[:, 0]).astype(int) + 1, 0, near.shape[1] - 1)
+            iv = np.clip(np.round(uv[:, 1]).astype(int) + 1, 0, near.shape[0] - 1)
+            keep |= near[iv, iu]
+        a, b, ua, ub, normal = a[keep], b[keep], ua[keep], ub[keep], self.outward[rim[keep]]
+        if len(a) == 0:
+            return np.zeros((0, 3))
+        n = np.maximum(1, np.ceil(np.linalg.norm(ub - ua, axis=1) / step_px)).astype(int)
+        edge = np.repeat(np.arange(len(a)), n)
+        t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / np.repeat(n, n)
+        P = a[edge] + t[:, None] * (b[edge] - a[edge])
+        # the image direction away from the silhouette: the rim's surface normal, projected
+        Pc = transform_points(T_cam_ee, P)
+        u = _project(Pc, K)
+        nrm = normal[edge] / np.maximum(np.linalg.norm(normal[edge], axis=1, keepdims=True), 1e-12)
+        step = _project(Pc + 1e-3 * (nrm @ T_cam_ee[:3, :3].T), K) - u
+        step /= np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-12)
+        h, w = shape
+        probe = u + probe_px * step
+        inside = ((u[:, 0] >= BORDER_PX) & (u[:, 0] <= w - 1 - BORDER_PX)
+                  & (u[:, 1] >= BORDER_PX) & (u[:, 1] <= h - 1 - BORDER_PX) & (Pc[:, 2] > 0))
+        P, probe = P[inside], probe[inside]
+        rays = _rays(probe, K) @ T_ee_cam[:3, :3].T
+        hit = self.rays.intersects_any(np.broadcast_to(eye, rays.shape).copy(), rays)
+        return P[~hit]
+
+    def render(self, T_cam_ee: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """The model's mask at pixel centres (as a one-sample index pass), by ray casting."""
+        h, w = shape
+        mask = np.zeros(shape, bool)
+        centre = T_cam_ee[:3, 3] + T_cam_ee[:3, :3] @ self.mesh.bounds.mean(0)
+        if centre[2] <= self.radius:
+            return mask
+        c = _project(centre[None], K)[0]
+        r = self.radius * max(K[0, 0], K[1, 1]) / np.sqrt(centre[2] ** 2 - self.radius ** 2) + 1
+        u0, u1 = max(0, int(c[0] - r)), min(w, int(np.ceil(c[0] + r)) + 1)
+        v0, v1 = max(0, int(c[1] - r)), min(h, int(np.ceil(c[1] + r)) + 1)
+        if u0 >= u1 or v0 >= v1:
+            return mask
+        uu, vv = np.meshgrid(np.arange(u0, u1, dtype=float), np.arange(v0, v1, dtype=float))
+        T_ee_cam = inv_T(T_cam_ee)
+        rays = _rays(np.stack([uu.ravel(), vv.ravel()], 1), K) @ T_ee_cam[:3, :3].T
+        hit = self.rays.intersects_any(np.broadcast_to(T_ee_cam[:3, 3], rays.shape).copy(), rays)
+        mask[v0:v1, u0:u1] = hit.reshape(uu.shape)
+        return mask
+
+
+class SilhouetteTerm:
+    """Residuals: each contour point's signed distance to its frame's mask boundary, over `sigma_px`.
+
+    The points are fixed for a term (re-extracted between solves, as ICP re-associates); the distance
+    field's gradient carries the pose's Jacobian.
+    """
+
+    def __init__(self, base_points: np.ndarray, view: np.ndarray, views: list[MaskView], sigma_px: float):
+        self.base_points, self.view, self.views, self.sigma_px = base_points, view, views, sigma_px
+        self.K = np.array([[v.K[0, 0], v.K[1, 1], v.K[0, 2], v.K[1, 2]] for v in views])[view]
+
+    def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        Q = self.base_points @ T_cam_base[:3, :3].T
+        uv, dpi = project(Q + T_cam_base[:3, 3], self.K)
+        d = np.zeros(len(uv))
+        g = np.zeros((len(uv), 2))
+        for i, v in enumerate(self.views):
+            at = self.view == i
+            d[at] = sample(v.sdt, uv[at])
+            if jacobian:
+                g[at] = sample(v.grad, uv[at])
+        e = (d / self.sigma_px)[:, None]
+        if not jacobian:
+            return e, None
+        return e, (g[:, None, :] @ dpi @ point_jacobian(Q)) / self.sigma_px
+
+
+def contour_term(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
+                 sigma_px: float, step_px: float = 1.0) -> SilhouetteTerm:
+    """frames: (T_base_ee, MaskView) each; the contour is extracted at the current pose."""
+    points, view = [], []
+    for i, (T_base_ee, mv) in enumerate(frames):
+        P = model.contour(T_cam_base @ T_base_ee, mv.K, mv.sdt.shape, step_px)
+        points.append(transform_points(T_base_ee, P))
+        view.append(np.full(len(P), i))
+    return SilhouetteTerm(np.concatenate(points), np.concatenate(view), [mv for _, mv in frames], sigma_px)
+
+
+def mean_iou(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]]) -> float:
+    """How well a calibration explains every frame's mask: the mean mask IoU."""
+    return float(np.mean([iou(model.render(T_cam_base @ T, mv.K, mv.sdt.shape), mv.mask) for T, mv in frames]))
+
+
+def _rays(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Camera-frame directions through pixels (N, 2)."""
+    return np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(uv))], 1)
+
+
+def _project(P: np.ndarray, K: np.ndarray) -> np.ndarray:
+    z = np.maximum(P[:, 2], 1e-9)
+    return np.stack([K[0, 0] * P[:, 0] / z + K[0, 2], K[1, 1] * P[:, 1] / z + K[1, 2]], 1)
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    union = np.count_nonzero(a | b)
+    return np.count_nonzero(a & b) / union if union else 0.0
