@@ -337,9 +337,9 @@ def main(argv=None) -> int:
     parser.add_argument("--backbone", help="method option: feature backbone")
     parser.add_argument("--icp", action="store_const", const=True,
                         help="feepe option: add depth alignment (our extension, not in the paper)")
-    parser.add_argument("--refine", choices=["none", "silhouette"],
-                        help="feepe option: silhouette refinement of the calibration over the key frames' masks "
-                             "(our extension, not in the paper; default none)")
+    parser.add_argument("--refine", choices=["none", "silhouette", "silhouette+depth"],
+                        help="feepe option: refine the calibration on the key frames' masks, alone or with depth "
+                             "over a sensor noise model (our extension, not in the paper; default none)")
     parser.add_argument("--layer", type=int, help="feepe option: DINOv2 block, counted from 0 as FoundPose (paper: 19 of ViT-L's 0..23)")
     parser.add_argument("--n-templates", type=int, help="feepe option: template set by count (default: largest)")
     parser.add_argument("--k-r", type=int, help="feepe option: reference templates per frame (paper: 5)")

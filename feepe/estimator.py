@@ -17,17 +17,17 @@ import numpy as np
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import FrameCandidates, SingleFrameOptions, frame_candidates
-from feepe.icp import SurfaceModel, associate, observed_cloud
+from feepe.icp import DepthTerm, SurfaceModel, associate, observed_cloud
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import Observations, OptimizeOptions, optimize, reprojection_px, stack
-from feepe.silhouette import SilhouetteModel, contour_term, mask_view, mean_iou
+from feepe.silhouette import SilhouetteModel, contour_fit, contour_term, mask_view, mean_iou
 from feepe.symmetry import consensus
 from syneepose.errors import UserError
 from syneepose.transforms import inv_T
 
 VARIANTS = ("A", "B", "C", "D")
-REFINEMENTS = ("none", "silhouette")
+REFINEMENTS = ("none", "silhouette", "silhouette+depth")
 
 
 @dataclass
@@ -40,11 +40,14 @@ class FeepeOptions:
     icp_iterations: int = 5
     icp_gate_m: float = 0.02
     icp_sigma_m: float = 0.002
-    refine: str = "none"  # "silhouette": our multi-frame mask alignment (feepe/silhouette.py)
+    refine: str = "none"  # "silhouette": our multi-frame mask alignment (feepe/silhouette.py); "+depth": with depth
     silhouette_sigmas_px: tuple = (4.0, 2.0, 1.0)  # coarse to fine: the robust kernel's scale per stage
     silhouette_rounds: int = 3  # contour re-extractions per stage
     silhouette_starts: int = 3  # starting calibrations refined; the best mask IoU is kept
     silhouette_switch_iou: float = 0.05  # another start must beat the last calibration's IoU by this to be tried
+    silhouette_depth_tolerance: float = 2.0  # standard errors depth may worsen the mean contour distance by
+    depth_sigma_m: float = 0.002  # noise shape sigma_m + sigma_z2 * z^2 (m), scaled by the measured spread;
+    depth_sigma_z2: float = 0.0036  # z^2 factor: Intel's D435 RMS model, subpixel 0.08 / (f 447 px x 0.05 m)
     single: SingleFrameOptions = field(default_factory=SingleFrameOptions)
     optimize: OptimizeOptions = field(default_factory=OptimizeOptions)
 
@@ -70,7 +73,8 @@ class FrameResult:
 
 
 SILHOUETTE_OPTIONS = ("refine", "silhouette_sigmas_px", "silhouette_rounds", "silhouette_starts",
-                      "silhouette_switch_iou")
+                      "silhouette_switch_iou", "silhouette_depth_tolerance",
+                      "depth_sigma_m", "depth_sigma_z2")
 
 
 def describe(opts: FeepeOptions, backbone) -> dict:
@@ -87,12 +91,15 @@ class Estimator:
                  model: SurfaceModel | None = None, silhouette: SilhouetteModel | None = None):
         self.bank, self.backbone, self.model, self.silhouette = bank, backbone, model, silhouette
         self.opts = options or FeepeOptions()
-        if self.opts.icp and model is None:
+        if (self.opts.icp or self._depth_in_refinement()) and model is None:
             raise UserError("depth alignment (icp) needs the end-effector model: pass model=SurfaceModel.from_ply(...)")
-        if self.opts.refine == "silhouette" and silhouette is None:
+        if self.opts.refine != "none" and silhouette is None:
             raise UserError("silhouette refinement needs the end-effector model: "
                             "pass silhouette=SilhouetteModel.from_ply(...)")
         self.reset()
+
+    def _depth_in_refinement(self) -> bool:
+        return self.opts.refine == "silhouette+depth"
 
     @classmethod
     def from_templates(cls, folder: Path, backbone: str = DEFAULT_BACKBONE, options: FeepeOptions | None = None,
@@ -101,8 +108,9 @@ class Estimator:
         """model_path (the BOP .ply, mm) is needed only for our extensions (icp, silhouette refinement)."""
         net = get_backbone(backbone, **backbone_kwargs)
         opts = options or FeepeOptions()
-        model = SurfaceModel.from_ply(model_path) if model_path and opts.icp else None
-        silhouette = SilhouetteModel.from_ply(model_path) if model_path and opts.refine == "silhouette" else None
+        with_depth = opts.icp or opts.refine == "silhouette+depth"
+        model = SurfaceModel.from_ply(model_path) if model_path and with_depth else None
+        silhouette = SilhouetteModel.from_ply(model_path) if model_path and opts.refine != "none" else None
         return cls(onboard(folder, net, opts.single.pad, cache_dir=cache_dir), net, opts, model, silhouette)
 
     def options(self) -> dict:
@@ -113,6 +121,7 @@ class Estimator:
         self.pool = MemoryPool(self.opts.memory_threshold_deg)
         self.T_cam_base: np.ndarray | None = None
         self.frame = 0
+        self._clouds: list = []
 
     def step(self, rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray,
              T_base_ee: np.ndarray) -> FrameResult:
@@ -121,9 +130,9 @@ class Estimator:
         found = frame_candidates(rgb, depth, np.asarray(mask, bool), K, self.bank, self.backbone, self.opts.single)
         if found is None:
             found = FrameCandidates(np.eye(3), [], 0, {})
-        if self.opts.icp:
+        if self.opts.icp or self._depth_in_refinement():
             found.cloud = observed_cloud(np.asarray(depth, float), np.asarray(mask, bool), K)
-        if self.opts.refine == "silhouette":
+        if self.opts.refine != "none":
             found.silhouette = mask_view(mask, K)
         timings = dict(found.timings)
         t0 = time.perf_counter()
@@ -161,7 +170,8 @@ class Estimator:
         T, _ = optimize(T_init, obs, opts.optimize)
         if opts.icp:
             T = self._align_depth(T, obs, [(T_b, f.cloud) for T_b, f in views])
-        if opts.refine == "silhouette":
+        if opts.refine != "none":
+            self._clouds = [(T_b, f.cloud) for T_b, f in views] if self._depth_in_refinement() else []
             T = self._refine_silhouette(self._starts(T, frames), [(T_b, f.silhouette) for T_b, f in views])
         score = float(np.sum(reprojection_px(T, stack(frames[:1])) <= opts.single.pnp_threshold_px))
         return T, score, len(frames) - 1
@@ -208,13 +218,28 @@ class Estimator:
         return best
 
     def _descend(self, T: np.ndarray, frames: list, sigmas) -> np.ndarray:
-        """Gauss-Newton on the contour term, the contour re-extracted between solves (as ICP re-associates)."""
+        """Gauss-Newton on the contour term (and depth), the contour re-extracted between solves (as ICP
+        re-associates). Depth may move the pose only within the masks' own uncertainty: when the result's
+        mean contour distance exceeds the masks-only pose's by more than `silhouette_depth_tolerance`
+        standard errors, a biased sensor is pulling it off the masks, and the masks-only pose is returned."""
+        T = self._solve(T, frames, sigmas, self._clouds)
+        if self._clouds:
+            T_masks = self._solve(T, frames, sigmas[-1:], [])
+            (with_depth, _), (masks, error) = (contour_fit(self.silhouette, X, frames) for X in (T, T_masks))
+            if with_depth > masks + self.opts.silhouette_depth_tolerance * error:
+                return T_masks
+        return T
+
+    def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:
         no_matches = Observations(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 4)), np.zeros((0, 3)))
-        inner = OptimizeOptions(max_iterations=5)
+        opts, inner = self.opts, OptimizeOptions(max_iterations=5)
         for sigma in sigmas:
-            for _ in range(self.opts.silhouette_rounds):
-                term = contour_term(self.silhouette, T, frames, sigma, step_px=max(1.0, sigma / 2))
-                T_new, _ = optimize(T, no_matches, inner, terms=[term])
+            for _ in range(opts.silhouette_rounds):
+                terms = [contour_term(self.silhouette, T, frames, sigma, step_px=max(1.0, sigma / 2))]
+                if clouds:
+                    planes = associate(T, clouds, self.model, opts.icp_gate_m)
+                    terms.append(DepthTerm(planes, T, opts.depth_sigma_m, opts.depth_sigma_z2))
+                T_new, _ = optimize(T, no_matches, inner, terms=terms)
                 moved = np.linalg.norm(T_new[:3, 3] - T[:3, 3])
                 T = T_new
                 if moved < 1e-4:

@@ -10,13 +10,15 @@ pixel error like a `sigma_m` depth error and the Cauchy loss has unit scale.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import TYPE_CHECKING, Protocol, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from feepe.icp import PlaneTerms
 from syneepose.transforms import transform_points
+
+if TYPE_CHECKING:  # feepe.icp builds its terms on this module's Jacobians
+    from feepe.icp import PlaneTerms
 
 
 @dataclass

@@ -189,6 +189,15 @@ def contour_term(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tu
     return SilhouetteTerm(np.concatenate(points), np.concatenate(view), [mv for _, mv in frames], sigma_px)
 
 
+def contour_fit(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
+                cap_px: float = 3.0) -> tuple[float, float]:
+    """Mean distance (px) of the contour points from their masks' boundaries (capped against outliers),
+    and its standard error."""
+    e, _ = contour_term(model, T_cam_base, frames, 1.0).residuals(T_cam_base, False)
+    d = np.minimum(np.abs(e[:, 0]), cap_px)
+    return (float(d.mean()), float(d.std() / np.sqrt(len(d)))) if len(d) > 1 else (0.0, np.inf)
+
+
 def mean_iou(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]]) -> float:
     """How well a calibration explains every frame's mask: the mean mask IoU."""
     return float(np.mean([iou(model.render(T_cam_base @ T, mv.K, mv.sdt.shape), mv.mask) for T, mv in frames]))

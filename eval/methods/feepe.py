@@ -65,8 +65,9 @@ class Feepe:
         if ee not in self._estimators:
             folder, *model_ply = self.inputs(meta, scene_dir)
             bank = onboard(folder, self.backbone, self.opts.single.pad, {"assignment": self.bow_assignment})
-            model = SurfaceModel.from_ply(model_ply[0]) if self.opts.icp else None
-            silhouette = SilhouetteModel.from_ply(model_ply[0]) if self.opts.refine == "silhouette" else None
+            with_depth = self.opts.icp or self.opts.refine == "silhouette+depth"
+            model = SurfaceModel.from_ply(model_ply[0]) if with_depth else None
+            silhouette = SilhouetteModel.from_ply(model_ply[0]) if self.opts.refine != "none" else None
             self._estimators[ee] = Estimator(bank, self.backbone, self.opts, model, silhouette)
         self._current = self._estimators[ee]
         self._current.reset()
