@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from feepe.depth import normal_map, point_map
-from feepe.icp import SurfaceModel, associate
+from feepe.icp import PlaneTerm, SurfaceModel, associate
 from feepe.optimize import OptimizeOptions, optimize, stack
 from syneepose.transforms import make_T, rotation_angle
 
@@ -146,7 +146,8 @@ class PpfDetector:
             planes = associate(T, [(np.eye(4), scene)], self.surface, gate)
             if len(planes.target_cam) < 6:
                 break
-            T, _ = optimize(T, no_matches, OptimizeOptions(max_iterations=10), planes, self.opts.inlier_m / 2)
+            T, _ = optimize(T, no_matches, OptimizeOptions(max_iterations=10),
+                            [PlaneTerm(planes, self.opts.inlier_m / 2)])
         return T
 
     def detect(self, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, float] | None:

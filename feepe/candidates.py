@@ -17,6 +17,7 @@ from feepe.depth import backproject, depth_at
 from feepe.matching import best_buddies
 from feepe.onboarding import TemplateBank
 from feepe.pnp import solve_pnp
+from feepe.silhouette import MaskView
 
 
 @dataclass
@@ -40,7 +41,7 @@ class FrameCandidates:
     n_features: int
     timings: dict = field(default_factory=dict)  # ms per stage
     cloud: np.ndarray | None = None  # (N, 3) masked depth points, camera frame (depth alignment only)
-    silhouette: object | None = None  # feepe.silhouette.MaskView of the frame (silhouette refinement only)
+    silhouette: MaskView | None = None  # the frame's mask as a distance field (silhouette refinement only)
 
 
 @dataclass

@@ -17,10 +17,10 @@ import numpy as np
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import FrameCandidates, SingleFrameOptions, frame_candidates
-from feepe.icp import DepthTerm, SurfaceModel, associate, observed_cloud
+from feepe.icp import PlaneTerm, SurfaceModel, associate, observed_cloud, sensor_plane_term
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
-from feepe.optimize import Observations, OptimizeOptions, optimize, reprojection_px, stack
+from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
 from feepe.silhouette import SilhouetteModel, contour_fit, contour_term, mask_view, mean_iou
 from feepe.symmetry import consensus
 from syneepose.errors import UserError
@@ -61,6 +61,22 @@ class FeepeOptions:
         if self.refine != "none" and self.variant == "A":
             raise UserError("variant A is PnP only; silhouette refinement needs variant B, C or D")
 
+    @property
+    def depth_in_refinement(self) -> bool:
+        return self.refine == "silhouette+depth"
+
+    @property
+    def needs_surface(self) -> bool:
+        """The depth terms (icp, silhouette+depth) align to surface samples of the model."""
+        return self.icp or self.depth_in_refinement
+
+
+def load_models(path: Path, opts: FeepeOptions) -> tuple[SurfaceModel | None, SilhouetteModel | None]:
+    """What our extensions need of the end-effector's BOP model (.ply, mm): surface samples for the depth
+    terms, the mesh for the silhouette."""
+    return (SurfaceModel.from_ply(path) if opts.needs_surface else None,
+            SilhouetteModel.from_ply(path) if opts.refine != "none" else None)
+
 
 @dataclass
 class FrameResult:
@@ -91,15 +107,12 @@ class Estimator:
                  model: SurfaceModel | None = None, silhouette: SilhouetteModel | None = None):
         self.bank, self.backbone, self.model, self.silhouette = bank, backbone, model, silhouette
         self.opts = options or FeepeOptions()
-        if (self.opts.icp or self._depth_in_refinement()) and model is None:
+        if self.opts.needs_surface and model is None:
             raise UserError("depth alignment (icp) needs the end-effector model: pass model=SurfaceModel.from_ply(...)")
         if self.opts.refine != "none" and silhouette is None:
             raise UserError("silhouette refinement needs the end-effector model: "
                             "pass silhouette=SilhouetteModel.from_ply(...)")
         self.reset()
-
-    def _depth_in_refinement(self) -> bool:
-        return self.opts.refine == "silhouette+depth"
 
     @classmethod
     def from_templates(cls, folder: Path, backbone: str = DEFAULT_BACKBONE, options: FeepeOptions | None = None,
@@ -108,9 +121,7 @@ class Estimator:
         """model_path (the BOP .ply, mm) is needed only for our extensions (icp, silhouette refinement)."""
         net = get_backbone(backbone, **backbone_kwargs)
         opts = options or FeepeOptions()
-        with_depth = opts.icp or opts.refine == "silhouette+depth"
-        model = SurfaceModel.from_ply(model_path) if model_path and with_depth else None
-        silhouette = SilhouetteModel.from_ply(model_path) if model_path and opts.refine != "none" else None
+        model, silhouette = load_models(model_path, opts) if model_path else (None, None)
         return cls(onboard(folder, net, opts.single.pad, cache_dir=cache_dir), net, opts, model, silhouette)
 
     def options(self) -> dict:
@@ -121,7 +132,6 @@ class Estimator:
         self.pool = MemoryPool(self.opts.memory_threshold_deg)
         self.T_cam_base: np.ndarray | None = None
         self.frame = 0
-        self._clouds: list = []
 
     def step(self, rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray,
              T_base_ee: np.ndarray) -> FrameResult:
@@ -130,7 +140,7 @@ class Estimator:
         found = frame_candidates(rgb, depth, np.asarray(mask, bool), K, self.bank, self.backbone, self.opts.single)
         if found is None:
             found = FrameCandidates(np.eye(3), [], 0, {})
-        if self.opts.icp or self._depth_in_refinement():
+        if self.opts.needs_surface:
             found.cloud = observed_cloud(np.asarray(depth, float), np.asarray(mask, bool), K)
         if self.opts.refine != "none":
             found.silhouette = mask_view(mask, K)
@@ -171,8 +181,8 @@ class Estimator:
         if opts.icp:
             T = self._align_depth(T, obs, [(T_b, f.cloud) for T_b, f in views])
         if opts.refine != "none":
-            self._clouds = [(T_b, f.cloud) for T_b, f in views] if self._depth_in_refinement() else []
-            T = self._refine_silhouette(self._starts(T, frames), [(T_b, f.silhouette) for T_b, f in views])
+            clouds = [(T_b, f.cloud) for T_b, f in views] if opts.depth_in_refinement else []
+            T = self._refine_silhouette(self._starts(T, frames), [(T_b, f.silhouette) for T_b, f in views], clouds)
         score = float(np.sum(reprojection_px(T, stack(frames[:1])) <= opts.single.pnp_threshold_px))
         return T, score, len(frames) - 1
 
@@ -181,13 +191,12 @@ class Estimator:
         opts = self.opts
         for _ in range(opts.icp_iterations):
             planes = associate(T, clouds, self.model, opts.icp_gate_m)
-            T_new, _ = optimize(T, obs, opts.optimize, planes, opts.icp_sigma_m)
+            T_new, _ = optimize(T, obs, opts.optimize, [PlaneTerm(planes, opts.icp_sigma_m)])
             moved = np.linalg.norm(T_new[:3, 3] - T[:3, 3])
             T = T_new
             if moved < 1e-5:
                 break
         return T
-
 
     def _starts(self, T: np.ndarray, frames) -> list[np.ndarray]:
         """The optimised calibration and the current frame's best candidates' (most inliers first)."""
@@ -195,7 +204,7 @@ class Estimator:
         best = sorted(cands, key=lambda c: -c.n_inliers)[:self.opts.silhouette_starts]
         return [T] + [c.T_cam_ee @ inv_T(T_base_ee) for c in best]
 
-    def _refine_silhouette(self, starts: list[np.ndarray], frames: list) -> np.ndarray:
+    def _refine_silhouette(self, starts: list[np.ndarray], frames: list, clouds: list) -> np.ndarray:
         """Online, the last calibration refined at the finest scale is kept unless another start explains
         the current mask clearly better; then every start is scored on all key frames and the best ones
         are refined coarse to fine. The result with the best mean mask IoU wins."""
@@ -204,26 +213,26 @@ class Estimator:
         current = frames[:1]
         warm = None
         if self.T_cam_base is not None:
-            warm = self._descend(self.T_cam_base, frames, sigmas[-1:])
+            warm = self._descend(self.T_cam_base, frames, sigmas[-1:], clouds)
             here = mean_iou(model, warm, current)
             if max(mean_iou(model, T, current) for T in starts) <= here + opts.silhouette_switch_iou:
                 return warm
         scored = sorted(((mean_iou(model, T, frames), i) for i, T in enumerate(starts)), reverse=True)
         best_iou, best = (mean_iou(model, warm, frames), warm) if warm is not None else (-1.0, None)
         for _, i in scored[:opts.silhouette_starts]:
-            T = self._descend(starts[i], frames, sigmas)
+            T = self._descend(starts[i], frames, sigmas, clouds)
             score = mean_iou(model, T, frames)
             if score > best_iou:
                 best_iou, best = score, T
         return best
 
-    def _descend(self, T: np.ndarray, frames: list, sigmas) -> np.ndarray:
+    def _descend(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:
         """Gauss-Newton on the contour term (and depth), the contour re-extracted between solves (as ICP
         re-associates). Depth may move the pose only within the masks' own uncertainty: when the result's
         mean contour distance exceeds the masks-only pose's by more than `silhouette_depth_tolerance`
         standard errors, a biased sensor is pulling it off the masks, and the masks-only pose is returned."""
-        T = self._solve(T, frames, sigmas, self._clouds)
-        if self._clouds:
+        T = self._solve(T, frames, sigmas, clouds)
+        if clouds:
             T_masks = self._solve(T, frames, sigmas[-1:], [])
             (with_depth, _), (masks, error) = (contour_fit(self.silhouette, X, frames) for X in (T, T_masks))
             if with_depth > masks + self.opts.silhouette_depth_tolerance * error:
@@ -231,14 +240,14 @@ class Estimator:
         return T
 
     def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:
-        no_matches = Observations(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 4)), np.zeros((0, 3)))
+        no_matches = stack([])
         opts, inner = self.opts, OptimizeOptions(max_iterations=5)
         for sigma in sigmas:
             for _ in range(opts.silhouette_rounds):
                 terms = [contour_term(self.silhouette, T, frames, sigma, step_px=max(1.0, sigma / 2))]
                 if clouds:
                     planes = associate(T, clouds, self.model, opts.icp_gate_m)
-                    terms.append(DepthTerm(planes, T, opts.depth_sigma_m, opts.depth_sigma_z2))
+                    terms.append(sensor_plane_term(planes, T, opts.depth_sigma_m, opts.depth_sigma_z2))
                 T_new, _ = optimize(T, no_matches, inner, terms=terms)
                 moved = np.linalg.norm(T_new[:3, 3] - T[:3, 3])
                 T = T_new

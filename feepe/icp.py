@@ -78,21 +78,13 @@ def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]
     return PlaneTerms(np.concatenate(base), np.concatenate(normals), np.concatenate(target))
 
 
-class DepthTerm:
-    """Point-to-plane residuals over a sensor noise model sigma(z) = s (sigma_0 + k z^2): the z^2 form of a
-    stereo camera's depth RMS (Intel's D435 model: z^2 x subpixel / (f x baseline)), with its scale s
-    measured from the data at the pose the term is built at (1.4826 x the median normalised distance, a
-    robust standard deviation; at least `min_scale`). Exact depth then pulls hard and a noisy sensor's
-    depth little, without naming the sensor; the optimiser's Cauchy kernel has the noise's scale."""
+class PlaneTerm:
+    """Point-to-plane residuals, each distance over its own sigma (m); a residual block for `optimize`.
+    The normal is held fixed within a step, as usual for point-to-plane."""
 
-    def __init__(self, planes: PlaneTerms, T_cam_base: np.ndarray, sigma_0: float, k_z2: float,
-                 min_scale: float = 0.25):
+    def __init__(self, planes: PlaneTerms, sigma_m: float | np.ndarray):
         self.planes = planes
-        shape = sigma_0 + k_z2 * planes.target_cam[:, 2] ** 2
-        self.inv_sigma = 1.0 / shape
-        if len(shape):
-            scale = 1.4826 * np.median(np.abs(self.residuals(T_cam_base, False)[0][:, 0]))
-            self.inv_sigma /= max(scale, min_scale)
+        self.inv_sigma = np.broadcast_to(1.0 / np.asarray(sigma_m, dtype=float), len(planes.target_cam))
 
     def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
         pl = self.planes
@@ -102,3 +94,17 @@ class DepthTerm:
         if not jacobian:
             return e, None
         return e, -(n[:, None, :] @ point_jacobian(Q)) * self.inv_sigma[:, None, None]
+
+
+def sensor_plane_term(planes: PlaneTerms, T_cam_base: np.ndarray, sigma_0: float, k_z2: float,
+                      min_scale: float = 0.25) -> PlaneTerm:
+    """Point-to-plane residuals over a sensor noise model sigma(z) = s (sigma_0 + k z^2): the z^2 form of a
+    stereo camera's depth RMS (Intel's D435 model: z^2 x subpixel / (f x baseline)), with its scale s
+    measured from the data at `T_cam_base` (1.4826 x the median normalised distance, a robust standard
+    deviation; at least `min_scale`). Exact depth then pulls hard and a noisy sensor's depth little,
+    without naming the sensor; the optimiser's Cauchy kernel has the noise's scale."""
+    term = PlaneTerm(planes, sigma_0 + k_z2 * planes.target_cam[:, 2] ** 2)
+    if len(planes.target_cam):
+        scale = 1.4826 * np.median(np.abs(term.residuals(T_cam_base, False)[0][:, 0]))
+        term.inv_sigma = term.inv_sigma / max(scale, min_scale)
+    return term

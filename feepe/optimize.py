@@ -10,15 +10,12 @@ pixel error like a `sigma_m` depth error and the Cauchy loss has unit scale.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol, Sequence
+from typing import Protocol, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from syneepose.transforms import transform_points
-
-if TYPE_CHECKING:  # feepe.icp builds its terms on this module's Jacobians
-    from feepe.icp import PlaneTerms
 
 
 @dataclass
@@ -77,14 +74,11 @@ class Term(Protocol):
 
 class _Problem:
     """Residual blocks, already divided by their scales: 2D (2 rows per match), 3D (3 rows per match with
-    depth) and, with depth alignment, point-to-plane (1 row per associated depth point)."""
+    depth), then the extra terms' (depth alignment's point-to-plane rows, the silhouette's contour rows)."""
 
-    def __init__(self, obs: Observations, sigma_px: float, sigma_m: float, w3d: float,
-                 planes: PlaneTerms | None = None, k_plane: float = 0.0, terms: Sequence[Term] = ()):
+    def __init__(self, obs: Observations, sigma_px: float, sigma_m: float, w3d: float, terms: Sequence[Term] = ()):
         self.obs, self.sigma_px, self.k3, self.terms = obs, sigma_px, w3d / sigma_m, terms
         self.depth = np.isfinite(obs.observed_cam).all(1) if w3d > 0 else np.zeros(len(obs.uv), bool)
-        self.planes = planes if planes is not None and k_plane > 0 else None
-        self.k_plane = k_plane
 
     def errors(self, T: np.ndarray, jacobian: bool = False) -> tuple[list, list]:
         Q = self.obs.base_points @ T[:3, :3].T
@@ -92,19 +86,12 @@ class _Problem:
         uv, dpi = project(P, self.obs.K)
         e2 = uv - self.obs.uv
         blocks = [e2 / self.sigma_px, (P[self.depth] - self.obs.observed_cam[self.depth]) * self.k3]
-        if self.planes is not None:
-            pl = self.planes
-            Qp = pl.base_points @ T[:3, :3].T
-            n = pl.base_normals @ T[:3, :3].T
-            blocks.append((np.sum(n * (pl.target_cam - Qp - T[:3, 3]), 1) * self.k_plane)[:, None])
         extra = [term.residuals(T, jacobian) for term in self.terms]
         blocks += [e for e, _ in extra]
         if not jacobian:
             return blocks, []
         dP = point_jacobian(Q)
         jacobians = [(dpi @ dP) / self.sigma_px, dP[self.depth] * self.k3]
-        if self.planes is not None:  # the normal is held fixed within a step, as usual for point-to-plane
-            jacobians.append(-(n[:, None, :] @ point_jacobian(Qp)) * self.k_plane)
         return blocks, jacobians + [J for _, J in extra]
 
 
@@ -128,19 +115,19 @@ class OptimizeOptions:
     max_iterations: int = 30
 
 
-def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions, planes: PlaneTerms | None = None,
-             plane_sigma_m: float = 0.002, terms: Sequence[Term] = ()) -> tuple[np.ndarray, np.ndarray]:
+def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
+             terms: Sequence[Term] = ()) -> tuple[np.ndarray, np.ndarray]:
     """The calibration minimising sum rho(||e||^2), rho = Cauchy, and its reprojection errors (px).
 
     Iteratively reweighted Gauss-Newton with Levenberg damping on analytic Jacobians: the weights
     1 / (1 + ||e||^2) are rho's derivative, so each step is a Gauss-Newton step of the robust cost.
-    `planes` adds the depth-alignment term (point-to-plane distances over `plane_sigma_m`); `terms` adds
-    any other residual block (the silhouette term).
+    `terms` adds residual blocks beside the matches' (depth alignment's `feepe.icp.PlaneTerm`, the
+    silhouette's contour term).
     """
-    if len(obs.uv) == 0 and (planes is None or len(planes.target_cam) == 0) and not terms:
+    if len(obs.uv) == 0 and all(len(t.residuals(T_init, False)[0]) == 0 for t in terms):
         return T_init, np.zeros(0)
     w3d = float(np.sqrt(opts.lam)) if opts.lam > 0 else 0.0
-    problem = _Problem(obs, opts.sigma_px, opts.sigma_m, w3d, planes, 1.0 / plane_sigma_m, terms)
+    problem = _Problem(obs, opts.sigma_px, opts.sigma_m, w3d, terms)
     T, damping = T_init.copy(), 1e-3
     blocks, jacobians = problem.errors(T, jacobian=True)
     cost = _cost(blocks)

@@ -17,6 +17,7 @@ import numpy as np
 import trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
+from feepe.depth import backproject
 from feepe.optimize import point_jacobian, project
 from syneepose.errors import UserError
 from syneepose.transforms import inv_T, transform_points
@@ -126,7 +127,7 @@ class SilhouetteModel:
         inside = ((u[:, 0] >= BORDER_PX) & (u[:, 0] <= w - 1 - BORDER_PX)
                   & (u[:, 1] >= BORDER_PX) & (u[:, 1] <= h - 1 - BORDER_PX) & (Pc[:, 2] > 0))
         P, probe = P[inside], probe[inside]
-        rays = _rays(probe, K) @ T_ee_cam[:3, :3].T
+        rays = backproject(probe, np.ones(len(probe)), K) @ T_ee_cam[:3, :3].T
         hit = self.rays.intersects_any(np.broadcast_to(eye, rays.shape).copy(), rays)
         return P[~hit]
 
@@ -145,7 +146,7 @@ class SilhouetteModel:
             return mask
         uu, vv = np.meshgrid(np.arange(u0, u1, dtype=float), np.arange(v0, v1, dtype=float))
         T_ee_cam = inv_T(T_cam_ee)
-        rays = _rays(np.stack([uu.ravel(), vv.ravel()], 1), K) @ T_ee_cam[:3, :3].T
+        rays = backproject(np.stack([uu.ravel(), vv.ravel()], 1), np.ones(uu.size), K) @ T_ee_cam[:3, :3].T
         hit = self.rays.intersects_any(np.broadcast_to(T_ee_cam[:3, 3], rays.shape).copy(), rays)
         mask[v0:v1, u0:u1] = hit.reshape(uu.shape)
         return mask
@@ -201,11 +202,6 @@ def contour_fit(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tup
 def mean_iou(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]]) -> float:
     """How well a calibration explains every frame's mask: the mean mask IoU."""
     return float(np.mean([iou(model.render(T_cam_base @ T, mv.K, mv.sdt.shape), mv.mask) for T, mv in frames]))
-
-
-def _rays(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Camera-frame directions through pixels (N, 2)."""
-    return np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(uv))], 1)
 
 
 def _project(P: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -15,10 +15,8 @@ from eval.methods.base import Estimate, Observation
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import SingleFrameOptions
-from feepe.estimator import Estimator, FeepeOptions, describe
-from feepe.icp import SurfaceModel
+from feepe.estimator import Estimator, FeepeOptions, describe, load_models
 from feepe.onboarding import onboard
-from feepe.silhouette import SilhouetteModel
 from syneepose.bop import SceneMeta
 from syneepose.errors import UserError
 from syneepose.templates import find_template_set
@@ -56,7 +54,7 @@ class Feepe:
         """The template set of the scene's end-effector, and the model `--icp` / `--refine` align."""
         root = Path(self.templates_dir) if self.templates_dir else Path(scene_dir).parents[1] / "templates"
         found = [find_template_set(root, meta.end_effector, self.n_templates)]
-        if self.opts.icp or self.opts.refine != "none":
+        if self.opts.needs_surface or self.opts.refine != "none":  # the depth terms, the silhouette
             found.append(Path(scene_dir).parents[1] / "models" / f"obj_{meta.obj_id:06d}.ply")
         return found
 
@@ -65,9 +63,7 @@ class Feepe:
         if ee not in self._estimators:
             folder, *model_ply = self.inputs(meta, scene_dir)
             bank = onboard(folder, self.backbone, self.opts.single.pad, {"assignment": self.bow_assignment})
-            with_depth = self.opts.icp or self.opts.refine == "silhouette+depth"
-            model = SurfaceModel.from_ply(model_ply[0]) if with_depth else None
-            silhouette = SilhouetteModel.from_ply(model_ply[0]) if self.opts.refine != "none" else None
+            model, silhouette = load_models(model_ply[0], self.opts) if model_ply else (None, None)
             self._estimators[ee] = Estimator(bank, self.backbone, self.opts, model, silhouette)
         self._current = self._estimators[ee]
         self._current.reset()
