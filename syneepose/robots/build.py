@@ -19,6 +19,7 @@ from importlib.metadata import version
 from pathlib import Path
 
 import trimesh
+from filelock import FileLock
 
 from syneepose import paths
 from syneepose.errors import UserError
@@ -124,6 +125,11 @@ def build_assets(out: Path | None = None, configs: list[str] | None = None, forc
         probe.unlink()
     except OSError as exc:
         raise UserError(f"cannot write the assets folder {out}: {exc.strerror}; choose another with --out") from exc
+    with FileLock(out / ".build.lock"):  # one builder at a time: a second one waits, then finds it built
+        return _build(catalog, configs, pairs, out, force, log, start)
+
+
+def _build(catalog: Catalog, configs: list[str], pairs: list, out: Path, force: bool, log, start: float) -> BuildReport:
     report = BuildReport()
 
     # Every end-effector is always built: models/ must hold all of them whatever subset is assembled.

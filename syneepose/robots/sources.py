@@ -15,6 +15,8 @@ import tempfile
 import zipfile
 from pathlib import Path
 
+from filelock import FileLock
+
 from syneepose.errors import UserError
 from syneepose.robots.catalog import Source
 
@@ -54,12 +56,19 @@ def _recipe(source: Source) -> str:
 
 
 def ensure_source(source: Source) -> Path:
-    """Directory holding the extracted parts of `source`; extracted once, atomically."""
+    """Directory holding the extracted parts of `source`; extracted once, atomically, by one process."""
     root = cache_dir() / "sources" / f"{source.dist}-{source.version}-{_recipe(source)}"
     if (root / ".complete").is_file():
         return root
-    wheel = fetch_wheel(source)
     root.parent.mkdir(parents=True, exist_ok=True)
+    with FileLock(root.with_name(f".{root.name}.lock")):  # another process may be extracting it right now
+        if (root / ".complete").is_file():
+            return root
+        return _extract(source, root)
+
+
+def _extract(source: Source, root: Path) -> Path:
+    wheel = fetch_wheel(source)
     tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", dir=root.parent))
     try:
         with zipfile.ZipFile(wheel) as zf:
