@@ -27,6 +27,7 @@ from eval.bop_results import BopResult, read_results, write_results
 from syneepose.cli import run_command
 from eval.methods import get_method
 from eval.methods.base import Estimate, Observation
+from eval.mask_noise import MaskNoise, frame_rng, mask_noise, perturb
 from eval.fingerprint import differences, only_scoring_changed, read_fingerprint, scene_fingerprint
 from eval.metrics import add, adds, rotation_error_deg, translation_error_mm
 from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
@@ -102,16 +103,18 @@ def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list
     return found
 
 
-def _observation(scene: Scene, im_id: int, depth_dir: str, cameras: dict):
+def _observation(scene: Scene, im_id: int, depth_dir: str, cameras: dict, noise: MaskNoise | None):
     """The observation a method sees and the ground truth T_cam_ee it is scored against."""
     frame = read_frame(scene.path, im_id)
+    mask = frame.mask_visib if noise is None else perturb(frame.mask_visib, noise,
+                                                            frame_rng(noise, scene.scene_id, im_id))
     depth = frame.depth
     if depth_dir != "depth":
         path = scene.path / depth_dir / f"{im_id:06d}.png"
         if not path.is_file():
             raise UserError(f"{path}: missing; --depth-dir {depth_dir} needs that folder beside depth/ in every scene")
         depth = read_png(path) * (cameras[str(im_id)]["depth_scale"] / 1000.0)
-    obs = Observation(im_id=im_id, rgb=frame.rgb, depth=depth, mask=frame.mask_visib, K=frame.K,
+    obs = Observation(im_id=im_id, rgb=frame.rgb, depth=depth, mask=mask, K=frame.K,
                       joint_positions=frame.joint_positions, T_base_ee=frame.T_base_ee)
     return obs, frame.T_cam_ee
 
@@ -156,13 +159,14 @@ def rescore_scene(out: Path, scene: Scene, model: EvalModel) -> list[FrameErrors
     return [dataclasses.replace(r, add_m=float(a), adds_m=float(b)) for r, a, b in zip(rows, add_m, adds_m)]
 
 
-def run_scene(method, scene: Scene, depth_dir: str, model: EvalModel, bar) -> tuple[list, list]:
+def run_scene(method, scene: Scene, depth_dir: str, model: EvalModel, bar,
+              noise: MaskNoise | None = None) -> tuple[list, list]:
     """The method over one scene in frame order; returns its BOP results and its error rows."""
     method.start_scene(dataclasses.replace(scene.meta, T_cam_base=NO_POSE.copy()), scene.path)
     cameras = json.loads((scene.path / "scene_camera.json").read_text())
     T_gt, estimates, wall_s = [], [], []
     for im_id in scene.im_ids:
-        obs, T_cam_ee = _observation(scene, im_id, depth_dir, cameras)
+        obs, T_cam_ee = _observation(scene, im_id, depth_dir, cameras, noise)
         start = time.perf_counter()
         estimates.append(method.estimate(obs))
         wall_s.append(time.perf_counter() - start)
@@ -229,7 +233,7 @@ def _claim(out: Path, identity: dict) -> None:
     path = out / "run.json"
     if path.is_file():
         before = json.loads(path.read_text())
-        changed = sorted(k for k in identity if before.get(k) != identity[k])
+        changed = sorted(k for k in set(identity) | set(before) if before.get(k) != identity.get(k))
         if changed:
             raise UserError(f"--out {out} holds a run with other {', '.join(changed)} ({path}); "
                             "use another --out or delete it")
@@ -264,7 +268,7 @@ def _git_commit() -> str | None:
 
 
 def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: str | None = None,
-             robots: str | None = None, depth_dir: str = "depth") -> dict:
+             robots: str | None = None, depth_dir: str = "depth", noise: MaskNoise | None = None) -> dict:
     """Runs (or resumes) the evaluation and returns the summary it wrote to <out>/summary.json."""
     method = build_method(method_name, options)
     dataset, out = Path(dataset).resolve(), Path(out)
@@ -272,6 +276,8 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     split = split_name(dataset)
     selected = find_scenes(dataset / split, scenes, robots)
     identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir}
+    if noise is not None:  # only when on: runs on exact masks keep the identity they had before the option
+        identity["mask_noise"] = noise.describe()
     models = {obj_id: load_eval_model(dataset, obj_id) for obj_id in sorted({s.meta.obj_id for s in selected})}
     _claim(out, identity)
     fingerprints = {s.scene_id: scene_fingerprint(s.path, s.im_ids, depth_dir, models[s.meta.obj_id].sha256,
@@ -293,7 +299,7 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
                initial=sum(len(s.im_ids) for s in selected) - sum(len(s.im_ids) for s in todo))
     try:
         for scene in todo:
-            results, errors = run_scene(method, scene, depth_dir, models[scene.meta.obj_id], bar)
+            results, errors = run_scene(method, scene, depth_dir, models[scene.meta.obj_id], bar, noise)
             _store_scene(out, scene.scene_id, fingerprints[scene.scene_id], errors, results)
     except BaseException:
         bar.leave = False
@@ -313,7 +319,8 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     summary = {
         "method": method_name, "options": opts, "backbone": opts.get("backbone"), "variant": opts.get("variant"),
         "dataset": {"path": str(dataset), "preset": info.get("preset"), "split": split,
-                    "scenes": [s.scene_id for s in selected], "depth_dir": depth_dir},
+                    "scenes": [s.scene_id for s in selected], "depth_dir": depth_dir,
+                    "mask_noise": None if noise is None else noise.describe()},
         "bop_results": bop_name,
         **summarise(all_errors),
         "model_points": {
@@ -354,12 +361,15 @@ def main(argv=None) -> int:
     parser.add_argument("--scenes", help="comma-separated scene ids (default: all)")
     parser.add_argument("--robots", help="comma-separated ARM+EE configurations (default: all)")
     parser.add_argument("--depth-dir", default="depth", help="depth folder of each scene (e.g. depth_gt)")
+    parser.add_argument("--mask-noise", default="none", help="none (the data set's exact masks, default) or sam: "
+                        "masks perturbed as a segmenter's (boundary shifted 1-4 px, false blobs, holes; our model)")
+    parser.add_argument("--mask-seed", type=int, default=0, help="seed of the mask perturbation (default 0)")
     args = parser.parse_args(argv)
     options = {k: getattr(args, k) for k in METHOD_OPTIONS if getattr(args, k) is not None}
 
     def action() -> str:
         summary = evaluate(args.method, options, Path(args.dataset), Path(args.out), args.scenes, args.robots,
-                           args.depth_dir)
+                           args.depth_dir, mask_noise(args.mask_noise, args.mask_seed))
         avg = summary["average"]
         return (f"eval: {summary['n_frames']} frames, {summary['n_failures']} failures; AUC@1cm ADD "
                 f"{avg['add@1cm']:.2f} ADD-S {avg['adds@1cm']:.2f} (mean over end-effectors); {args.out}/summary.json")

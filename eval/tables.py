@@ -66,7 +66,10 @@ def load_runs(folders: list[Path]) -> list[Run]:
         for key, paper, title in (("k_r", 5, "K_r"), ("k_f", 8, "K_f")):
             if run.options.get(key) not in (None, paper):
                 method += f" {title}={run.options[key]}"
-        details = [v for v in (s.get("backbone"), s["dataset"].get("preset") or Path(s["dataset"]["path"]).name) if v]
+        data = s["dataset"]
+        details = [v for v in (s.get("backbone"), data.get("preset") or Path(data["path"]).name) if v]
+        details += [f"{data['depth_dir']}/"] if data.get("depth_dir", "depth") != "depth" else []
+        details += ["perturbed masks"] if data.get("mask_noise") else []
         run.label = f"{method} ({', '.join(details)})"
     repeated = Counter(run.label for run in runs)
     for run in runs:

@@ -312,3 +312,25 @@ def test_registry_names_a_missing_or_broken_builtin_method(tmp_path, monkeypatch
         methods.get_method("needy")
     assert methods.get_method("bop-csv").name == "bop-csv"
     assert {"bop-csv", "feepe", "ghost"} <= set(methods.known_methods())
+
+
+def test_mask_noise_reaches_the_method_seeded_and_claims_the_out_folder(dataset, tmp_path, capsys):
+    """--mask-noise hands the method perturbed masks, the same on a rerun, and a folder scored on exact masks
+    is not resumed with perturbed ones."""
+    masks = []
+    for out in ("a", "b"):
+        Probe.seen.clear()
+        assert run.main(["--method", "test-probe", "--dataset", str(dataset), "--out", str(tmp_path / out),
+                         "--mask-noise", "sam", "--mask-seed", "2"]) == 0
+        masks.append([item[1].mask for item in Probe.seen if item[0] == "frame"])
+    exact = read_frame(dataset / "test" / "000000", 0).mask_visib
+    assert any(not np.array_equal(m, exact) for m in masks[0])
+    assert all(np.array_equal(a, b) for a, b in zip(*masks))
+    summary = json.loads((tmp_path / "a" / "summary.json").read_text())
+    assert summary["dataset"]["mask_noise"]["seed"] == 2
+    capsys.readouterr()
+    assert run.main(["--method", "test-probe", "--dataset", str(dataset), "--out", str(tmp_path / "a")]) == 2
+    assert "holds a run with other mask_noise" in _one_error_line(capsys.readouterr().err)
+    assert run.main(["--method", "test-probe", "--dataset", str(dataset), "--out", str(tmp_path / "c"),
+                     "--mask-noise", "blur"]) == 2
+    assert "--mask-noise 'blur' unknown" in _one_error_line(capsys.readouterr().err)
