@@ -20,7 +20,7 @@ from pathlib import Path
 
 from eval import reported
 from syneepose.cli import run_command
-from eval.plots import accuracy_curves, read_trials, targeting_plot
+from eval.plots import accuracy_curves, convergence_plot, read_trials, targeting_plot
 from eval.records import read_errors
 from syneepose.bop import write_atomic
 from syneepose.errors import UserError
@@ -249,6 +249,11 @@ def write_tables(folders: list[Path], out: Path) -> list[Path]:
         accuracy_curves([(run.label, read_errors(run.path / "errors.csv")) for run in runs], written[-1])
         sections += ["## Accuracy curves\n", "Fraction of frames with error <= x, averaged over end-effectors "
                      "(its area is the Average AUC).\n", f"![accuracy curves]({written[-1].name})\n"]
+        written.append(out / "convergence.png")
+        convergence_plot([(run.label, read_errors(run.path / "errors.csv")) for run in runs], written[-1])
+        sections += ["## Convergence along the segments\n", "AUC@1cm of ADD (mean over end-effectors) and the "
+                     "median camera-to-base error of the frames in each frame-index range: how many frames an "
+                     "online method needs.\n", f"![convergence]({written[-1].name})\n"]
     if aims:
         written.append(out / "targeting.png")
         targeting_plot([read_trials(f / "targeting.csv") for f in aimed], written[-1])

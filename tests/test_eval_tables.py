@@ -12,8 +12,8 @@ from eval import reported, run, tables
 from eval.methods import register
 from eval.methods.bop_csv import BopCsv
 from eval.metrics import auc
-from eval.plots import mean_curve
-from eval.records import read_errors
+from eval.plots import convergence, frame_bins, mean_curve
+from eval.records import FrameErrors, read_errors
 from tests.test_eval_run import gt_csv, make_dataset
 
 
@@ -53,7 +53,8 @@ def test_all_tables_in_three_formats_with_measured_and_reported_rows(result_dirs
     assert tables.main([str(d) for d in result_dirs] + ["--out", str(out)]) == 0
     stems = ["table1", "ablation", "layers", "hyperparameters", "robot_pose"]
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        [f"{s}{x}" for s in stems for x in (".md", ".tex", ".csv")] + ["accuracy_curves.png", "tables.md"])
+        [f"{s}{x}" for s in stems for x in (".md", ".tex", ".csv")] + ["accuracy_curves.png", "convergence.png",
+                                                                    "tables.md"])
 
     table1 = {row[0]: row for row in _rows(out / "table1.csv")}
     assert table1["FEEPE (reported)"][1:] == ["85.24/86.29", "85.24/86.36", "84.53/85.23", "88.73/91.67",
@@ -82,7 +83,7 @@ def test_all_tables_in_three_formats_with_measured_and_reported_rows(result_dirs
     assert r"MegaPose\dag{} (reported) & " in latex and r"\begin{tabular}{llllllllll}" in latex
     combined = (out / "tables.md").read_text()
     assert all(f"## {t}" in combined for t in ("Table I", "Ablation", "DINOv2 layer", "Hyperparameters",
-                                               "Robot pose", "Accuracy curves"))
+                                               "Robot pose", "Accuracy curves", "Convergence along the segments"))
     assert "![accuracy curves](accuracy_curves.png)" in combined
     image = imread(out / "accuracy_curves.png")
     assert image.shape[0] > 100 and image.shape[1] > 100
@@ -116,3 +117,16 @@ def test_curve_area_is_the_average_auc(result_dirs):
     assert summary["average"]["add@1cm"] == pytest.approx(np.mean([auc([r.add_m for r in rows
                                                                         if r.end_effector == ee], 0.01)
                                                                    for ee in ("kinova_3f", "robotiq_2f85")]))
+
+
+def test_convergence_by_frame_index():
+    """Two end-effectors over frames 0-7 in bins of 2: the error halves every bin; AUC is their mean."""
+    rows = [FrameErrors(scene_id=s, im_id=i, obj_id=s, config="c", end_effector=f"ee{s}",
+                        add_m=0.008 / 2 ** (i // 2), adds_m=0.0, rot_err_deg=0.0, trans_err_mm=0.0,
+                        calib_trans_mm=40.0 / 2 ** (i // 2) if i else float("nan"), calib_rot_deg=0.0,
+                        time_s=0.0, score=1.0, wall_s=0.0) for s in (0, 1) for i in range(8)]
+    bins = frame_bins(np.array([r.im_id for r in rows]), n_bins=4)
+    assert bins == [(0, 1), (2, 3), (4, 5), (6, 7)]
+    add_auc, calib = convergence(rows, bins)
+    assert np.allclose(add_auc, [20.0, 60.0, 80.0, 90.0], atol=0.1)  # 1 - error / 1 cm in %, on a 0.01 mm grid
+    assert np.allclose(calib, [40.0, 20.0, 10.0, 5.0])
