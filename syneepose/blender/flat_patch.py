@@ -1,0 +1,107 @@
+"""`python -m syneepose.blender.flat_patch`: is the simulated stereo depth as noisy as a D435, no more and
+no less? A grey wall facing the camera at several distances, its sensed depth over the central ROI
+fitted with a plane; the residual RMS is compared with Intel's published model for the D4xx family,
+RMS = z^2 x subpixel / (f x baseline) (Intel, "Tuning depth cameras for best performance", subpixel
+RMS about 0.08 px on a well-textured wall), at our IR focal length and baseline.
+
+Prints one row per distance and writes them to --out as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from syneepose.bop import write_atomic
+from syneepose.cli import run_command
+from syneepose.errors import UserError
+from syneepose.scene.spec import Plane, Surface
+from syneepose.stereo import load_profile, stereo_depth, to_rgb_camera
+from syneepose.transforms import make_T
+
+INTEL_SUBPIXEL = 0.08  # px, Intel's typical subpixel RMS for the D4xx on a textured flat target
+
+
+def plane_rms(depth: np.ndarray, K: np.ndarray, roi: float) -> tuple[float, float, float, float]:
+    """RMS (m) of the distances to the best-fit plane over the central `roi` fraction of the image (as
+    Intel's Depth Quality Tool), their robust sigma (1.4826 MAD: the spread without the mismatches), the
+    median depth and the fraction of ROI pixels with depth."""
+    h, w = depth.shape
+    dv, du = int(h * (1 - roi) / 2), int(w * (1 - roi) / 2)
+    z = depth[dv:h - dv, du:w - du]
+    v, u = np.nonzero(z > 0)
+    zs = z[v, u]
+    x = (u + du - K[0, 2]) / K[0, 0] * zs
+    y = (v + dv - K[1, 2]) / K[1, 1] * zs
+    P = np.stack([x, y, zs], 1)
+    centred = P - P.mean(0)
+    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
+    d = centred @ normal
+    robust = 1.4826 * np.median(np.abs(d - np.median(d)))
+    return float(np.sqrt(np.mean(d**2))), float(robust), float(np.median(zs)), float(len(zs) / z.size)
+
+
+def measure(distances: list[float], width: int, height: int, profile_name: str, roi: float) -> list[dict]:
+    from syneepose.blender import scene as bscene
+    from syneepose.blender.stereo import IrRig
+
+    profile = load_profile(profile_name)
+    f = width / 2 / np.tan(np.deg2rad(30))
+    K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
+    grey = Surface("plain", (0.5, 0.5, 0.5), (0.5, 0.5, 0.5), 1.0)
+    rows = []
+    with tempfile.TemporaryDirectory() as work:
+        for z in distances:
+            bscene.reset(width, height, 4, False, 4, (0.3, 0.3, 0.3), 1.0)
+            bscene.set_camera(K, width, height, np.eye(4))
+            bscene.add_planes([Plane(make_T(np.diag([1.0, -1.0, -1.0]), [0, 0, z]), (20.0, 20.0), grey)])
+            rig = IrRig(profile, width, height, seed=0)
+            left, right = rig.render_pair(np.eye(4), Path(work))
+            sensed = to_rgb_camera(stereo_depth(left, right, profile, rig.K_ir), rig.K_ir, profile.T_rgb_irleft,
+                                   K, width, height)
+            rms, robust, median, fill = plane_rms(sensed, K, roi)
+            f_ir = float(rig.K_ir[0, 0])
+            intel = z**2 * INTEL_SUBPIXEL / (f_ir * profile.baseline)
+            rows.append({"z_m": z, "rms_mm": 1e3 * rms, "robust_sigma_mm": 1e3 * robust, "intel_rms_mm": 1e3 * intel,
+                         "subpixel_px": rms * f_ir * profile.baseline / z**2, "bias_mm": 1e3 * (median - z),
+                         "fill": fill, "f_ir_px": f_ir})
+            print(f"z {z:.2f} m: plane-fit RMS {1e3 * rms:.2f} mm (robust sigma {1e3 * robust:.2f} mm), Intel model "
+                  f"{1e3 * intel:.2f} mm "
+                  f"(subpixel {rows[-1]['subpixel_px']:.3f} vs {INTEL_SUBPIXEL}), median bias "
+                  f"{rows[-1]['bias_mm']:+.2f} mm, fill {100 * fill:.1f} %", flush=True)
+    return rows
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m syneepose.blender.flat_patch", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--distances", default="0.5,0.75,1.0,1.5,2.0", help="wall distances, metres")
+    parser.add_argument("--resolution", default="320x240", help="RGB size WxH (the IR pair is the profile's scale)")
+    parser.add_argument("--profile", default="d435")
+    parser.add_argument("--roi", type=float, default=0.8, help="central fraction of the image fitted")
+    parser.add_argument("--out", required=True, type=Path, help="JSON file of the rows")
+    args = parser.parse_args(argv)
+
+    def action() -> str:
+        try:
+            distances = [float(v) for v in args.distances.split(",")]
+            width, height = (int(v) for v in args.resolution.lower().split("x"))
+        except ValueError:
+            raise UserError(f"--distances {args.distances!r} / --resolution {args.resolution!r}: give e.g. "
+                            "0.5,1.0 and 320x240") from None
+        if min(distances) <= 0 or not 0 < args.roi <= 1 or min(width, height) < 16 or max(width, height) > 4096:
+            raise UserError("--distances must be > 0, --roi in (0, 1], --resolution 16..4096 px a side")
+        rows = measure(distances, width, height, args.profile, args.roi)
+        write_atomic(args.out, json.dumps(rows, indent=1).encode())
+        return f"flat_patch: {len(rows)} distances; {args.out}"
+
+    return run_command(action)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
