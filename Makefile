@@ -61,6 +61,7 @@ bench: dataset
 	$(PY) benchmarks/assets_build.py
 	$(PY) benchmarks/render.py
 	$(PY) benchmarks/estimator.py --dataset $(DATA)
+	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette
 	$(PY) benchmarks/metrics.py
 
 clean-assets:

@@ -17,6 +17,7 @@ import numpy as np
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import FrameCandidates, SingleFrameOptions, frame_candidates
+from feepe.centres import CentreTrack, observed_centre
 from feepe.icp import PlaneTerm, SurfaceModel, associate, observed_cloud, sensor_plane_term
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
@@ -28,6 +29,7 @@ from syneepose.transforms import inv_T
 
 VARIANTS = ("A", "B", "C", "D")
 REFINEMENTS = ("none", "silhouette", "silhouette+depth")
+IOU_STRIDE = 2  # the refinement's decisions compare mask IoUs on every second pixel
 
 
 @dataclass
@@ -44,6 +46,7 @@ class FeepeOptions:
     silhouette_sigmas_px: tuple = (4.0, 2.0, 1.0)  # coarse to fine: the robust kernel's scale per stage
     silhouette_rounds: int = 3  # contour re-extractions per stage
     silhouette_starts: int = 3  # starting calibrations refined; the best mask IoU is kept
+    silhouette_position_starts: bool = True  # also start from the calibration the end-effector's positions imply
     silhouette_switch_iou: float = 0.05  # another start must beat the last calibration's IoU by this to be tried
     silhouette_depth_tolerance: float = 2.0  # standard errors depth may worsen the mean contour distance by
     depth_sigma_m: float = 0.002  # noise shape sigma_m + sigma_z2 * z^2 (m), scaled by the measured spread;
@@ -89,7 +92,7 @@ class FrameResult:
 
 
 SILHOUETTE_OPTIONS = ("refine", "silhouette_sigmas_px", "silhouette_rounds", "silhouette_starts",
-                      "silhouette_switch_iou", "silhouette_depth_tolerance",
+                      "silhouette_position_starts", "silhouette_switch_iou", "silhouette_depth_tolerance",
                       "depth_sigma_m", "depth_sigma_z2")
 
 
@@ -132,6 +135,8 @@ class Estimator:
         self.pool = MemoryPool(self.opts.memory_threshold_deg)
         self.T_cam_base: np.ndarray | None = None
         self.frame = 0
+        self._fitted: tuple[int, float] | None = None  # pool size and mean key-frame IoU at the last refinement
+        self.centres = CentreTrack(self.silhouette.mesh.bounds.mean(0)) if self.silhouette is not None else None
 
     def step(self, rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray,
              T_base_ee: np.ndarray) -> FrameResult:
@@ -143,11 +148,13 @@ class Estimator:
         if self.opts.needs_surface:
             found.cloud = observed_cloud(np.asarray(depth, float), np.asarray(mask, bool), K)
         if self.opts.refine != "none":
-            found.silhouette = mask_view(mask, K)
+            found.silhouette = mask_view(mask, K, depth)
+            if self.opts.silhouette_position_starts:
+                self.centres.add(T_base_ee, observed_centre(depth, mask, K))
         timings = dict(found.timings)
         t0 = time.perf_counter()
-        T_cam_base, score, n_keys = self._estimate(found, T_base_ee)
-        timings["optimisation"] = 1e3 * (time.perf_counter() - t0)
+        T_cam_base, score, n_keys = self._estimate(found, T_base_ee, timings)
+        timings["optimisation"] = 1e3 * (time.perf_counter() - t0) - timings.get("refinement", 0.0)
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found))
         self.frame += 1
         if T_cam_base is not None:
@@ -156,7 +163,7 @@ class Estimator:
         T_cam_ee = None if T_cam_base is None else T_cam_base @ T_base_ee
         return FrameResult(T_cam_ee, T_cam_base, score, len(found.candidates), n_keys, timings)
 
-    def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray):
+    def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray, timings: dict):
         opts, cands = self.opts, found.candidates
         if opts.variant == "A":
             if not cands:
@@ -181,8 +188,11 @@ class Estimator:
         if opts.icp:
             T = self._align_depth(T, obs, [(T_b, f.cloud) for T_b, f in views])
         if opts.refine != "none":
+            t0 = time.perf_counter()
             clouds = [(T_b, f.cloud) for T_b, f in views] if opts.depth_in_refinement else []
-            T = self._refine_silhouette(self._starts(T, frames), [(T_b, f.silhouette) for T_b, f in views], clouds)
+            starts = self._starts(T, T_base_ee, cands)
+            T = self._refine_silhouette(starts, [(T_b, f.silhouette) for T_b, f in views], clouds)
+            timings["refinement"] = 1e3 * (time.perf_counter() - t0)
         score = float(np.sum(reprojection_px(T, stack(frames[:1])) <= opts.single.pnp_threshold_px))
         return T, score, len(frames) - 1
 
@@ -198,32 +208,40 @@ class Estimator:
                 break
         return T
 
-    def _starts(self, T: np.ndarray, frames) -> list[np.ndarray]:
-        """The optimised calibration and the current frame's best candidates' (most inliers first)."""
-        T_base_ee, _, cands = frames[0]
+    def _starts(self, T: np.ndarray, T_base_ee: np.ndarray, cands: list) -> list[np.ndarray]:
+        """The optimised calibration, the current frame's best candidates' (most inliers first, symmetry
+        disambiguation notwithstanding: the masks judge them) and those the end-effector's positions so far
+        imply (feepe/centres.py)."""
         best = sorted(cands, key=lambda c: -c.n_inliers)[:self.opts.silhouette_starts]
-        return [T] + [c.T_cam_ee @ inv_T(T_base_ee) for c in best]
+        return [T] + [c.T_cam_ee @ inv_T(T_base_ee) for c in best] + self.centres.starts()
 
     def _refine_silhouette(self, starts: list[np.ndarray], frames: list, clouds: list) -> np.ndarray:
-        """Online, the last calibration refined at the finest scale is kept unless another start explains
-        the current mask clearly better; then every start is scored on all key frames and the best ones
-        are refined coarse to fine. The result with the best mean mask IoU wins."""
-        opts, model = self.opts, self.silhouette
-        sigmas = opts.silhouette_sigmas_px
-        current = frames[:1]
+        """Online: with no new key frame since the last refinement and a current mask that the last
+        calibration explains as well as it explained the key frames, it stands. Else it is refined at the
+        finest scale and kept unless another start explains the current mask clearly better; then every start
+        is scored on all key frames and the best ones are refined coarse to fine. The best mean mask IoU wins."""
+        opts, sigmas, current = self.opts, self.opts.silhouette_sigmas_px, frames[:1]
+
+        def fit(T: np.ndarray, views: list) -> float:
+            return mean_iou(self.silhouette, T, views, IOU_STRIDE)
+
         warm = None
         if self.T_cam_base is not None:
+            if self._fitted is not None and self._fitted[0] == len(self.pool):
+                if fit(self.T_cam_base, current) >= self._fitted[1] - opts.silhouette_switch_iou:
+                    return self.T_cam_base  # no new key frame, and the current mask agrees as well as they did
             warm = self._descend(self.T_cam_base, frames, sigmas[-1:], clouds)
-            here = mean_iou(model, warm, current)
-            if max(mean_iou(model, T, current) for T in starts) <= here + opts.silhouette_switch_iou:
+            if max(fit(T, current) for T in starts) <= fit(warm, current) + opts.silhouette_switch_iou:
+                self._fitted = (len(self.pool), fit(warm, frames))
                 return warm
-        scored = sorted(((mean_iou(model, T, frames), i) for i, T in enumerate(starts)), reverse=True)
-        best_iou, best = (mean_iou(model, warm, frames), warm) if warm is not None else (-1.0, None)
+        scored = sorted(((fit(T, frames), i) for i, T in enumerate(starts)), reverse=True)
+        best_iou, best = (fit(warm, frames), warm) if warm is not None else (-1.0, None)
         for _, i in scored[:opts.silhouette_starts]:
             T = self._descend(starts[i], frames, sigmas, clouds)
-            score = mean_iou(model, T, frames)
+            score = fit(T, frames)
             if score > best_iou:
                 best_iou, best = score, T
+        self._fitted = (len(self.pool), best_iou)
         return best
 
     def _descend(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:

@@ -11,7 +11,7 @@ from feepe.backbones import DEFAULT, get_backbone
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
 from feepe.optimize import _step
-from feepe.silhouette import SilhouetteModel, SilhouetteTerm, mask_view, sample
+from feepe.silhouette import SilhouetteModel, SilhouetteTerm, contour_term, mask_view, mean_iou, sample
 from syneepose.bop import read_frame, read_scene, split_dir
 from syneepose.errors import UserError
 from syneepose.templates import find_template_set
@@ -53,6 +53,26 @@ def test_contour_term_jacobian_matches_finite_differences():
         big = np.abs(J[:, 0, k]) > 0.1
         assert np.corrcoef(numeric[:, 0], J[:, 0, k])[0, 1] > 0.85  # box corners break the field's smoothness
         assert abs(np.median(numeric[big, 0] / J[big, 0, k]) - 1.0) < 0.05
+
+
+def test_an_occluder_in_front_is_not_taken_for_the_outline():
+    """A bar 10 cm in front hides the box's left third: with the frame's depth, the true pose still scores
+    IoU ~1 and no contour point is kept under the bar; without depth, the cut outline looks like a misfit."""
+    model = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
+    T = _box_pose()
+    depth = model.render_depth(T, K, (120, 160))
+    assert abs(np.median(depth[depth > 0]) - 0.5) < 0.03
+    cols = np.nonzero(depth.any(0))[0]
+    bar = np.zeros_like(depth, bool)
+    bar[:, : cols[0] + (cols[-1] - cols[0]) // 3] = True
+    visible = (depth > 0) & ~bar
+    depth = np.where(bar, 0.4, depth)
+    frames = [(np.eye(4), mask_view(visible, K, depth))]
+    assert mean_iou(model, T, frames) > 0.99
+    assert mean_iou(model, T, [(np.eye(4), mask_view(visible, K))]) < 0.8
+    term = contour_term(model, T, frames, 1.0)
+    uv = transform_points(T, term.base_points)[:, :2] / transform_points(T, term.base_points)[:, 2:] * 300 + [80, 60]
+    assert len(uv) > 50 and not bar[np.round(uv[:, 1]).astype(int), np.round(uv[:, 0]).astype(int)].any()
 
 
 def test_paper_variants_keep_their_identity_and_options_are_checked():
