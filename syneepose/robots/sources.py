@@ -60,8 +60,9 @@ def ensure_source(source: Source) -> Path:
     root = cache_dir() / "sources" / f"{source.dist}-{source.version}-{_recipe(source)}"
     if (root / ".complete").is_file():
         return root
-    root.parent.mkdir(parents=True, exist_ok=True)
-    with FileLock(root.with_name(f".{root.name}.lock")):  # another process may be extracting it right now
+    locks = cache_dir() / "locks"
+    locks.mkdir(parents=True, exist_ok=True)
+    with FileLock(locks / f"{root.name}.lock"):  # another process may be extracting it right now
         if (root / ".complete").is_file():
             return root
         return _extract(source, root)
@@ -69,6 +70,7 @@ def ensure_source(source: Source) -> Path:
 
 def _extract(source: Source, root: Path) -> Path:
     wheel = fetch_wheel(source)
+    root.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", dir=root.parent))
     try:
         with zipfile.ZipFile(wheel) as zf:
