@@ -60,8 +60,9 @@ def test_report_loads_in_headless_chromium_with_every_image(feepe_run, tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     page = (out / "index.html").read_text()
     sources = re.findall(r'<img src="([^"]+)"', page)
-    # the curves, then per end-effector (2) the 3 worst frames and the GIF of the worst frame's segment
-    assert len(sources) == 1 + 2 * (3 + 1) and sources[0] == "tables/accuracy_curves.png"
+    # the curves and the convergence plot, then per end-effector (2) the 3 worst frames and the GIF of the
+    # worst frame's segment
+    assert len(sources) == 2 + 2 * (3 + 1) and sources[:2] == ["tables/accuracy_curves.png", "tables/convergence.png"]
     assert all(not Path(s).is_absolute() and (out / s).is_file() for s in sources)
 
     dom, console = open_in_chromium(out / "index.html", tmp_path)
