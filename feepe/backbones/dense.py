@@ -1,4 +1,5 @@
-"""Weight-free dense descriptors: upright SIFT on the masked image, camera-frame depth normals, colour.
+"""Weight-free dense descriptors: upright SIFT on the masked image, camera-frame depth normals, colour, and
+OpenCV-contrib's built-in descriptors (feepe/backbones/contrib.py: vgg, boost, beblid, teblid, daisy, latch).
 
 Names combine parts with '+', e.g. `sift+normals`. SIFT is computed upright (angle 0) because the
 templates already cover the in-plane rotations; the normal part pools the depth normals (rotated as if
@@ -13,11 +14,12 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from feepe.backbones import contrib
 from feepe.backbones.base import PatchFeatures, grid_points, unit_rows
 from feepe.crop import Crop
 from feepe.depth import align_to_axis, normal_map
 
-PARTS = ("sift", "normals", "color")
+PARTS = ("sift", "normals", "color") + contrib.NAMES
 
 
 def _cell_offsets(cell: float) -> np.ndarray:
@@ -47,10 +49,11 @@ class DenseBackbone:
     stride: int = 4
     sift_size: float = 16.0
     cell: int = 4
-    weights: dict = field(default_factory=lambda: {"sift": 1.0, "normals": 1.0, "color": 0.5})
+    weights: dict = field(default_factory=lambda: {**{p: 1.0 for p in PARTS}, "color": 0.5})
 
     def __post_init__(self):
         self._engine = cv2.SIFT_create()
+        self._contrib = {p: contrib.ContribDescriptor(p, self.sift_size) for p in self.parts if p in contrib.NAMES}
 
     @property
     def name(self) -> str:
@@ -64,7 +67,11 @@ class DenseBackbone:
         uv = grid_points(crop.mask, self.stride, self.stride / 2.0)
         blocks = []
         for part in self.parts:
-            blocks.append(self.weights[part] * getattr(self, f"_{part}")(crop, uv))
+            if part in self._contrib:
+                gray = cv2.cvtColor(crop.rgb, cv2.COLOR_RGB2GRAY)
+                blocks.append(self.weights[part] * self._contrib[part].compute(gray, uv))
+            else:
+                blocks.append(self.weights[part] * getattr(self, f"_{part}")(crop, uv))
         return PatchFeatures(uv, unit_rows(np.concatenate(blocks, 1)) if len(uv) else np.zeros((0, 1), np.float32))
 
     def _sift(self, crop: Crop, uv: np.ndarray) -> np.ndarray:
