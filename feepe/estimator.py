@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
@@ -30,6 +31,10 @@ from syneepose.transforms import inv_T
 VARIANTS = ("A", "B", "C", "D")
 REFINEMENTS = ("none", "silhouette", "silhouette+depth")
 IOU_STRIDE = 2  # the refinement's decisions compare mask IoUs on every second pixel
+# The optimisation and the refinement multiply many small matrices (normal equations of N x 6 Jacobians,
+# N x 3 points by 3 x 3 rotations). OpenBLAS's threads cost more than they save there: a 10000 x 6 normal
+# matrix took 0.15 ms on one thread and 1.4-23 ms on two while the cores were busy. Those stages run on one.
+_BLAS = ThreadpoolController()
 
 
 @dataclass
@@ -48,6 +53,7 @@ class FeepeOptions:
     silhouette_starts: int = 3  # starting calibrations refined; the best mask IoU is kept
     silhouette_position_starts: bool = True  # also start from the calibration the end-effector's positions imply
     silhouette_switch_iou: float = 0.05  # another start must beat the last calibration's IoU by this to be tried
+    silhouette_min_sigma_px: float = 0.25  # with depth, the finest stage's scale: the masks' measured spread, at least this
     silhouette_depth_tolerance: float = 2.0  # standard errors depth may worsen the mean contour distance by
     depth_sigma_m: float = 0.002  # noise shape sigma_m + sigma_z2 * z^2 (m), scaled by the measured spread;
     depth_sigma_z2: float = 0.0036  # z^2 factor: Intel's D435 RMS model, subpixel 0.08 / (f 447 px x 0.05 m)
@@ -92,7 +98,8 @@ class FrameResult:
 
 
 SILHOUETTE_OPTIONS = ("refine", "silhouette_sigmas_px", "silhouette_rounds", "silhouette_starts",
-                      "silhouette_position_starts", "silhouette_switch_iou", "silhouette_depth_tolerance",
+                      "silhouette_position_starts", "silhouette_switch_iou", "silhouette_min_sigma_px",
+                      "silhouette_depth_tolerance",
                       "depth_sigma_m", "depth_sigma_z2")
 
 
@@ -153,7 +160,8 @@ class Estimator:
                 self.centres.add(T_base_ee, observed_centre(depth, mask, K))
         timings = dict(found.timings)
         t0 = time.perf_counter()
-        T_cam_base, score, n_keys = self._estimate(found, T_base_ee, timings)
+        with _BLAS.limit(limits=1, user_api="blas"):
+            T_cam_base, score, n_keys = self._estimate(found, T_base_ee, timings)
         timings["optimisation"] = 1e3 * (time.perf_counter() - t0) - timings.get("refinement", 0.0)
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found))
         self.frame += 1
@@ -260,9 +268,13 @@ class Estimator:
     def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:
         no_matches = stack([])
         opts, inner = self.opts, OptimizeOptions(max_iterations=5)
-        for sigma in sigmas:
+        for k, sigma in enumerate(sigmas):
+            # beside depth, the masks weigh by how well they fit: a segmenter's few-pixel errors then yield
+            # the range to depth, exact masks keep it (at the finest stage, down to min_sigma)
+            floor = opts.silhouette_min_sigma_px if clouds and k == len(sigmas) - 1 else sigma
             for _ in range(opts.silhouette_rounds):
-                terms = [contour_term(self.silhouette, T, frames, sigma, step_px=max(1.0, sigma / 2))]
+                terms = [contour_term(self.silhouette, T, frames, floor, step_px=max(1.0, sigma / 2),
+                                      measured=bool(clouds))]
                 if clouds:
                     planes = associate(T, clouds, self.model, opts.icp_gate_m)
                     terms.append(sensor_plane_term(planes, T, opts.depth_sigma_m, opts.depth_sigma_z2))

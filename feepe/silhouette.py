@@ -9,7 +9,7 @@ not pixel centres of a rendered mask, so the fit carries no half-pixel shrink.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -26,6 +26,7 @@ BORDER_PX = 2  # contour points this close to the image border are dropped: the 
 
 
 OCCLUDER_MARGIN_M = 0.03  # observed depth this much nearer than the model there: something stands in front
+REUSE_PX = 0.5  # a frame's contour is extracted again once the model has moved this far in its image
 
 
 @dataclass
@@ -37,6 +38,9 @@ class MaskView:
     mask: np.ndarray  # (H, W) bool
     K: np.ndarray  # (3, 3) full-image intrinsics
     depth: np.ndarray | None = None  # (H, W) metres, 0 unknown; None: no occlusion reasoning
+    # the last contour extracted on this frame per point spacing: (T_cam_ee, visible model points). A new
+    # key frame moves the calibration a little; the other frames' outlines then stay where they were.
+    contours: dict = field(default_factory=dict, repr=False)
 
     def occluded(self, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Pixels off the visible mask whose observed depth is clearly nearer than `z` (a stereo hole,
@@ -216,26 +220,53 @@ class SilhouetteTerm:
 
 
 def contour_term(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
-                 sigma_px: float, step_px: float = 1.0) -> SilhouetteTerm:
-    """frames: (T_base_ee, MaskView) each; the contour is extracted at the current pose."""
+                 sigma_px: float, step_px: float = 1.0, measured: bool = False) -> SilhouetteTerm:
+    """frames: (T_base_ee, MaskView) each; the contours are those at the current pose. `measured`: the
+    scale is at least the residuals' robust spread at this pose (1.4826 x median), so masks that a
+    segmenter got a few pixels wrong pull less against depth than exact ones."""
     points, view = [], []
     for i, (T_base_ee, mv) in enumerate(frames):
-        T_cam_ee = T_cam_base @ T_base_ee
-        P = model.contour(T_cam_ee, mv.K, mv.sdt.shape, step_px)
-        Pc = transform_points(T_cam_ee, P)
-        P = P[~mv.occluded(_project(Pc, mv.K), Pc[:, 2])]  # hidden by what stands in front: no evidence
+        P = visible_contour(model, T_cam_base @ T_base_ee, mv, step_px)
         points.append(transform_points(T_base_ee, P))
         view.append(np.full(len(P), i))
-    return SilhouetteTerm(np.concatenate(points), np.concatenate(view), [mv for _, mv in frames], sigma_px)
+    term = SilhouetteTerm(np.concatenate(points), np.concatenate(view), [mv for _, mv in frames], sigma_px)
+    if measured and len(term.view):
+        spread = 1.4826 * float(np.median(np.abs(term.residuals(T_cam_base, False)[0]))) * sigma_px
+        term.sigma_px = max(sigma_px, spread)
+    return term
+
+
+def visible_contour(model: SilhouetteModel, T_cam_ee: np.ndarray, mv: MaskView, step_px: float) -> np.ndarray:
+    """Model-frame contour points of one frame that nothing in front hides, extracted again only when the
+    model has moved more than REUSE_PX in the image since the frame's last extraction."""
+    last = mv.contours.get(step_px)
+    if last is not None and image_motion_px(model, last[0], T_cam_ee, mv.K) <= REUSE_PX:
+        return last[1]
+    P = model.contour(T_cam_ee, mv.K, mv.sdt.shape, step_px)
+    Pc = transform_points(T_cam_ee, P)
+    P = P[~mv.occluded(_project(Pc, mv.K), Pc[:, 2])]  # hidden by what stands in front: no evidence
+    mv.contours[step_px] = (T_cam_ee.copy(), P)
+    return P
+
+
+def image_motion_px(model: SilhouetteModel, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
+    """A bound on how far any model point moves in the image between two poses (small motions): the
+    bounding sphere's centre shift plus its radius turned through the rotation, at the sphere's near side."""
+    c = model.mesh.bounds.mean(0)
+    a, b = T_a[:3, :3] @ c + T_a[:3, 3], T_b[:3, :3] @ c + T_b[:3, 3]
+    cos = np.clip((np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1) / 2, -1.0, 1.0)
+    near = max(min(a[2], b[2]) - model.radius, 1e-3)
+    return float(max(K[0, 0], K[1, 1]) * (np.linalg.norm(b - a) + np.arccos(cos) * model.radius) / near)
 
 
 def contour_fit(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
                 cap_px: float = 3.0) -> tuple[float, float]:
     """Mean distance (px) of the contour points from their masks' boundaries (capped against outliers),
-    and its standard error."""
+    and its standard error with frames, not points, as the independent samples: a segmenter's error runs
+    smoothly along an outline, so one frame's points share it."""
     e, _ = contour_term(model, T_cam_base, frames, 1.0).residuals(T_cam_base, False)
     d = np.minimum(np.abs(e[:, 0]), cap_px)
-    return (float(d.mean()), float(d.std() / np.sqrt(len(d)))) if len(d) > 1 else (0.0, np.inf)
+    return (float(d.mean()), float(d.std() / np.sqrt(len(frames)))) if len(d) > 1 else (0.0, np.inf)
 
 
 def mean_iou(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],

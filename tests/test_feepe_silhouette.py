@@ -2,6 +2,7 @@
 contour term's Jacobian is its derivative, the refinement pulls a perturbed calibration back on
 rendered frames, and the paper's variants keep their identity."""
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
@@ -11,7 +12,8 @@ from feepe.backbones import DEFAULT, get_backbone
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
 from feepe.optimize import _step
-from feepe.silhouette import SilhouetteModel, SilhouetteTerm, contour_term, mask_view, mean_iou, sample
+from feepe.silhouette import (REUSE_PX, SilhouetteModel, SilhouetteTerm, contour_term, image_motion_px, mask_view,
+                              mean_iou, sample, visible_contour)
 from syneepose.bop import read_frame, read_scene, split_dir
 from syneepose.errors import UserError
 from syneepose.templates import find_template_set
@@ -53,6 +55,48 @@ def test_contour_term_jacobian_matches_finite_differences():
         big = np.abs(J[:, 0, k]) > 0.1
         assert np.corrcoef(numeric[:, 0], J[:, 0, k])[0, 1] > 0.85  # box corners break the field's smoothness
         assert abs(np.median(numeric[big, 0] / J[big, 0, k]) - 1.0) < 0.05
+
+
+def test_image_motion_bound_covers_every_vertex():
+    model = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
+    T = _box_pose()
+    V = model.mesh.vertices
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        T2 = _step(T, np.concatenate([rng.normal(0, 0.01, 3), rng.normal(0, 0.002, 3)]))
+        moved = np.linalg.norm(_project(transform_points(T2, V)) - _project(transform_points(T, V)), axis=1).max()
+        bound = image_motion_px(model, T, T2, K)
+        assert moved <= bound <= 4 * moved + 0.5
+
+
+def test_a_frames_contour_is_reused_until_the_model_moves_half_a_pixel():
+    model = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
+    T = _box_pose()
+    view = mask_view(model.render(T, K, (120, 160)), K)
+    first = visible_contour(model, T, view, 1.0)
+    near = _step(T, np.array([0, 0, 0, 0.1 * REUSE_PX * 0.5 / 300, 0, 0]))
+    assert visible_contour(model, near, view, 1.0) is first
+    far = _step(T, np.array([0.05, 0, 0, 0, 0, 0]))
+    again = visible_contour(model, far, view, 1.0)
+    assert again is not first and len(again) and np.array_equal(view.contours[1.0][0], far)
+
+
+def test_measured_scale_follows_how_well_the_masks_fit():
+    """Beside depth, an exactly fitting mask keeps the floor scale and a mask whose outline is 3 px off
+    (a segmenter's error) gets 1.4826 x its median distance, about 4.4 px."""
+    model = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
+    T = _box_pose()
+    exact = model.render(T, K, (120, 160))
+    grown = cv2.dilate(exact.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))) > 0
+    frames = [(np.eye(4), mask_view(exact, K))]
+    assert contour_term(model, T, frames, 0.25, measured=True).sigma_px < 0.6
+    frames = [(np.eye(4), mask_view(grown, K))]
+    assert 3.5 < contour_term(model, T, frames, 0.25, measured=True).sigma_px < 5.0
+    assert contour_term(model, T, frames, 0.25).sigma_px == 0.25
+
+
+def _project(P):
+    return P[:, :2] / P[:, 2:] * 300 + [80, 60]
 
 
 def test_an_occluder_in_front_is_not_taken_for_the_outline():
