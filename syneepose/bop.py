@@ -38,6 +38,7 @@ class Frame:
     depth_gt: np.ndarray | None = None  # exact depth when `depth` is a simulated sensor's (metres)
     ir_left: np.ndarray | None = None  # (h, w) uint8 IR pair of the stereo sensor (--depth both)
     ir_right: np.ndarray | None = None
+    link_ids: np.ndarray | None = None  # (H, W) uint8 visible robot part: 0 none, k + 1 = SceneMeta.links[k]
 
 
 @dataclass
@@ -50,18 +51,24 @@ class SceneMeta:
     depth_scale: float = DEPTH_SCALE
     marker: dict | None = None  # MarkerBoard.to_json() when a ChArUco board rides on the end-effector
     depth_sensor: dict | None = None  # {"mode": "stereo" | "both", "profile": {...}}; None: exact depth
+    links: list[str] | None = None  # robot parts of `robot_mask_visib/` (arm links, then the end-effector)
 
 
 EXTRAS = {"stereo": ("depth_gt",), "both": ("depth_gt", "ir_left", "ir_right")}
+LINK_IDS_DIR = "robot_mask_visib"  # our sidecar, not BOP: which robot part each pixel sees (uint8 PNG)
 
 
-def _image_paths(scene_dir: Path, im_id: int, depth_sensor: dict | None = None) -> dict[str, Path]:
-    """The files of one frame; a simulated depth sensor adds the exact depth (and the IR pair)."""
+def _image_paths(scene_dir: Path, im_id: int, robot: dict | None = None) -> dict[str, Path]:
+    """The files of one frame, from the scene's `scene_robot.json` record: a simulated depth sensor adds the
+    exact depth (and the IR pair), a scene that names its robot parts adds their visible-mask image."""
+    robot = robot or {}
     mask_name = f"{im_id:06d}_{GT_ID:06d}.png"
     paths = {"rgb": scene_dir / "rgb" / f"{im_id:06d}.png", "depth": scene_dir / "depth" / f"{im_id:06d}.png",
              "mask": scene_dir / "mask" / mask_name, "mask_visib": scene_dir / "mask_visib" / mask_name}
-    for extra in EXTRAS.get((depth_sensor or {}).get("mode"), ()):
+    for extra in EXTRAS.get((robot.get("depth_sensor") or {}).get("mode"), ()):
         paths[extra] = scene_dir / extra / f"{im_id:06d}.png"
+    if robot.get("links"):
+        paths["link_ids"] = scene_dir / LINK_IDS_DIR / f"{im_id:06d}.png"
     return paths
 
 
@@ -108,9 +115,9 @@ def write_json(path: Path, content, indent: int | None = 2) -> None:
 
 
 def _complete(scene_dir: Path, records: dict[str, dict], im_id: int) -> bool:
-    key, sensor = str(im_id), records["scene_robot"].get("depth_sensor")
-    return (all(key in records[name] for name in _JSONS[:3]) and key in records["scene_robot"].get("frames", {})
-            and all(p.exists() for p in _image_paths(scene_dir, im_id, sensor).values()))
+    key, robot = str(im_id), records["scene_robot"]
+    return (all(key in records[name] for name in _JSONS[:3]) and key in robot.get("frames", {})
+            and all(p.exists() for p in _image_paths(scene_dir, im_id, robot).values()))
 
 
 def complete_frames(scene_dir: Path, records: dict[str, dict] | None = None) -> list[int]:
@@ -184,7 +191,7 @@ def _load_coco(scene_dir: Path, records: dict[str, dict]) -> dict[int, dict]:
     for key in records["scene_robot"].get("frames", {}):
         im_id = int(key)
         if im_id not in coco and _complete(scene_dir, records, im_id):
-            paths = _image_paths(scene_dir, im_id)
+            paths = _image_paths(scene_dir, im_id, records["scene_robot"])
             coco[im_id] = _coco_record(im_id, records["scene_gt"][key][GT_ID]["obj_id"],
                                       read_png(paths["mask"]) > 127, read_png(paths["mask_visib"]) > 127)
     return coco
@@ -224,6 +231,9 @@ class SceneWriter:
         if before is not None and before != after:
             raise UserError(f"{self.scene_dir} holds frames with {before} depth, not {after}; write to another "
                             "folder (a scene never mixes depth kinds)")
+        if robot.get("frames") and robot.get("links") != meta.links:
+            raise UserError(f"{self.scene_dir} holds frames whose robot parts are {robot.get('links')}, not "
+                            f"{meta.links} (a render before {LINK_IDS_DIR}/ existed?); write to another folder")
         self._records["scene_robot"] = {
             "arm": meta.arm, "end_effector": meta.end_effector, "config": f"{meta.arm}+{meta.end_effector}",
             "joint_names": list(meta.joint_names), "T_cam_base": np.asarray(meta.T_cam_base, dtype=float).tolist(),
@@ -232,9 +242,13 @@ class SceneWriter:
             self._records["scene_robot"]["marker"] = meta.marker
         if meta.depth_sensor is not None:
             self._records["scene_robot"]["depth_sensor"] = meta.depth_sensor
+        if meta.links:
+            if len(meta.links) > 255:
+                raise UserError(f"{len(meta.links)} robot parts do not fit the uint8 {LINK_IDS_DIR}/ images (255 at most)")
+            self._records["scene_robot"]["links"] = list(meta.links)
         self._coco = _load_coco(self.scene_dir, self._records)
         self._obj_ids = sorted(ee.obj_id for ee in load_catalog().end_effectors.values())
-        for path in _image_paths(self.scene_dir, 0, meta.depth_sensor).values():
+        for path in _image_paths(self.scene_dir, 0, self._records["scene_robot"]).values():
             path.parent.mkdir(parents=True, exist_ok=True)
 
     def done(self, im_id: int) -> bool:
@@ -251,17 +265,30 @@ class SceneWriter:
             out["depth_gt"] = _depth_png(replace(frame, depth=frame.depth_gt), self.meta.depth_scale)
         return out
 
+    def _link_ids(self, frame: Frame, size: tuple[int, int]) -> np.ndarray:
+        ids = frame.link_ids
+        if ids is None or np.shape(ids) != size:
+            raise UserError(f"frame {frame.im_id}: a scene with robot parts {self.meta.links} needs link_ids of "
+                            f"shape {size}, got {None if ids is None else np.shape(ids)}")
+        ids = np.asarray(ids)
+        if ids.min() < 0 or ids.max() > len(self.meta.links):
+            raise UserError(f"frame {frame.im_id}: link_ids hold {ids.min()}..{ids.max()}; allowed 0 (no part) "
+                            f"to {len(self.meta.links)} (one per robot part)")
+        return ids.astype(np.uint8)
+
     def write(self, frame: Frame) -> None:
         """Images first, then every JSON, so a JSON record only ever names whole images."""
         meta, key = self.meta, str(frame.im_id)
         depth_png = _depth_png(frame, meta.depth_scale)
-        paths = _image_paths(self.scene_dir, frame.im_id, meta.depth_sensor)
+        paths = _image_paths(self.scene_dir, frame.im_id, self._records["scene_robot"])
         write_png(paths["rgb"], cv2.cvtColor(np.ascontiguousarray(frame.rgb), cv2.COLOR_RGB2BGR))
         write_png(paths["depth"], depth_png)
         for name, image in self._extras(frame, depth_png).items():
             write_png(paths[name], image)
         for name in ("mask", "mask_visib"):
             write_png(paths[name], np.asarray(getattr(frame, name), dtype=bool).astype(np.uint8) * 255)
+        if "link_ids" in paths:
+            write_png(paths["link_ids"], self._link_ids(frame, depth_png.shape))
 
         T_cam_base, T_cam_ee = np.asarray(meta.T_cam_base, dtype=float), np.asarray(frame.T_cam_ee, dtype=float)
         records = self._records
@@ -338,7 +365,7 @@ def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
                      end_effector=robot["end_effector"], joint_names=list(robot["joint_names"]),
                      T_cam_base=np.array(robot["T_cam_base"], dtype=float),
                      depth_scale=records["scene_camera"][first]["depth_scale"], marker=robot.get("marker"),
-                     depth_sensor=robot.get("depth_sensor"))
+                     depth_sensor=robot.get("depth_sensor"), links=robot.get("links"))
     return meta, im_ids
 
 
@@ -359,10 +386,10 @@ def read_frame(scene_dir: Path, im_id: int) -> Frame:
     records = _load_records(scene_dir)
     if not _complete(scene_dir, records, im_id):
         raise UserError(f"{scene_dir}: no complete frame {im_id}; `read_scene` lists the frames present")
-    key, paths = str(im_id), _image_paths(scene_dir, im_id, records["scene_robot"].get("depth_sensor"))
+    key, paths = str(im_id), _image_paths(scene_dir, im_id, records["scene_robot"])
     camera, gt = records["scene_camera"][key], records["scene_gt"][key][GT_ID]
     robot = records["scene_robot"]["frames"][key]
-    extras = {n: read_png(paths[n]) for n in ("ir_left", "ir_right") if n in paths}
+    extras = {n: read_png(paths[n]) for n in ("ir_left", "ir_right", "link_ids") if n in paths}
     if "depth_gt" in paths:
         extras["depth_gt"] = read_png(paths["depth_gt"]) * (camera["depth_scale"] / 1000.0)
     return Frame(im_id=im_id, rgb=cv2.cvtColor(read_png(paths["rgb"]), cv2.COLOR_BGR2RGB),

@@ -94,6 +94,39 @@ def test_ground_truth_matches_pixels(rendered):
             assert (f.mask_visib <= f.mask).all()
 
 
+def _link_mesh(robot, link, T_base_link):
+    """The link's visuals in the base frame (metres)."""
+    parts = []
+    for visual in robot.model.link(link).visuals:
+        part = trimesh.load(str(robot.urdf.parent / visual.mesh), force="mesh", process=False)
+        parts.append(part.apply_transform(T_base_link[link] @ visual.origin))
+    return trimesh.util.concatenate(parts)
+
+
+def test_link_ids_name_the_visible_robot_part(rendered):
+    """Each robot_mask_visib/ pixel names the part the camera sees there: the end-effector's ids are its
+    visible mask, and an arm link's pixels lie on that link's own mesh at the rendered depth."""
+    checked = 0
+    for scene in _scenes(rendered):
+        meta, im_ids = read_scene(scene)
+        robot = load_robot(f"{meta.arm}+{meta.end_effector}")
+        assert meta.links[-1] == robot.ee_root and len(meta.links) == len(set(meta.links)) > 3
+        for im_id in im_ids:
+            f = read_frame(scene, im_id)
+            np.testing.assert_array_equal(f.link_ids == len(meta.links), f.mask_visib)
+            T_base_link = robot.T_base_link(f.joint_positions)
+            h, w = f.link_ids.shape
+            for k in np.unique(f.link_ids[(f.link_ids > 0) & (f.link_ids < len(meta.links))]):
+                seen = (f.link_ids == k) & (f.depth > 0)
+                if seen.sum() < 5:
+                    continue
+                mesh = _link_mesh(robot, meta.links[k - 1], T_base_link)
+                z = _raycast(mesh, meta.T_cam_base, f.K, w, h)
+                assert np.mean(np.abs(f.depth[seen] - z[seen]) < 2e-3) > 0.9, (scene.name, im_id, meta.links[k - 1])
+                checked += 1
+    assert checked >= 10
+
+
 def test_same_seed_same_data(rendered, tmp_path):
     again = tmp_path / "again"
     proc = _render(again, "--frames", "2", "--robots", CONFIGS[1])

@@ -21,7 +21,8 @@ from syneepose.robots.model import RobotModel
 from syneepose.scene.marker import MarkerBoard
 from syneepose.scene.spec import Distractor, Light, Plane, Surface
 
-PASS_EE, PASS_ARM, PASS_BOARD = 1, 2, 3
+PASS_EE, PASS_BOARD = 1, 3
+PASS_LINK0 = 16  # arm link k (of RobotObjects.arm_links) renders object index PASS_LINK0 + k
 MAIN, EE_ONLY = "main", "ee_only"
 BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
@@ -175,11 +176,17 @@ def surface_material(name: str, surface: Surface):
     return mat
 
 
+def arm_links(model: RobotModel, ee_links: set[str]) -> list[str]:
+    """The arm's links that have a mesh, in URDF order: the parts of the robot mask besides the end-effector."""
+    return [lk.name for lk in model.links if lk.visuals and lk.name not in ee_links]
+
+
 class RobotObjects:
     """One Blender object per URDF visual; `pose` places them from FK link poses."""
 
     def __init__(self, model: RobotModel, urdf_dir: Path, ee_links: set[str]):
         self.items = []
+        self.arm_links = arm_links(model, ee_links)
         meshes, materials = {}, {}
         for link in model.links:
             is_ee = link.name in ee_links
@@ -191,8 +198,16 @@ class RobotObjects:
                 if key not in materials:
                     materials[key] = rgba_material(f"robot_{len(materials)}", visual.rgba)
                 ob = _object(f"{link.name}_{k}", meshes[visual.mesh], materials[key], "ee" if is_ee else "robot",
-                             PASS_EE if is_ee else PASS_ARM)
+                             PASS_EE if is_ee else PASS_LINK0 + self.arm_links.index(link.name))
                 self.items.append((link.name, visual.origin, ob))
+
+    def link_ids(self, index: np.ndarray) -> np.ndarray:
+        """The object-index pass as robot part ids: arm link k -> k + 1, the end-effector -> len(arm_links) + 1."""
+        ids = np.zeros(index.shape, dtype=np.uint8)
+        arm = (index >= PASS_LINK0) & (index < PASS_LINK0 + len(self.arm_links))
+        ids[arm] = index[arm] - PASS_LINK0 + 1
+        ids[index == PASS_EE] = len(self.arm_links) + 1
+        return ids
 
     def pose(self, T_base_link: dict[str, np.ndarray]) -> None:
         for link, origin, ob in self.items:

@@ -37,7 +37,8 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
         obj_id=robot.ee.obj_id, arm=robot.arm.name, end_effector=robot.ee.name,
         joint_names=list(robot.arm.joints), T_cam_base=inv_T(spec.T_base_cam),
         marker=spec.marker.to_json() if spec.marker is not None else None,
-        depth_sensor={"mode": spec.depth_mode, "profile": spec.sensor.source} if spec.sensor is not None else None))
+        depth_sensor={"mode": spec.depth_mode, "profile": spec.sensor.source} if spec.sensor is not None else None,
+        links=[*bscene.arm_links(robot.model, set(robot.ee_links)), robot.ee_root]))
     todo = [i for i in range(spec.n_frames) if not writer.done(i)]
     if not todo:
         return 0
@@ -63,7 +64,7 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
             im_id=i, rgb=linear_to_srgb8(out["rgb_linear"]), depth=depth,
             mask=out["ee_index"] == bscene.PASS_EE, mask_visib=out["index"] == bscene.PASS_EE,
             K=spec.K, T_cam_ee=T_cam_base @ T_base_link[robot.ee_root], joint_positions=q,
-            T_base_ee=T_base_link[robot.ee_root])
+            T_base_ee=T_base_link[robot.ee_root], link_ids=objects.link_ids(out["index"]))
         if rig is not None:
             frame = _with_sensor_depth(frame, rig, spec, Path(scene_dir))
         writer.write(frame)
