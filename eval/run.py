@@ -37,7 +37,7 @@ from syneepose.bop import (SceneMeta, read_frame, read_gt_poses, read_png, read_
                           write_atomic)
 from syneepose.errors import UserError
 
-METHOD_OPTIONS = ("variant", "icp", "refine", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
+METHOD_OPTIONS = ("variant", "icp", "refine", "silhouette", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
                   "templates_dir", "bow_assignment", "hand_eye", "results", "name")  # CLI options handed to the method's constructor
 NO_POSE = np.full((4, 4), np.nan)
 
@@ -106,8 +106,13 @@ def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list
 def _observation(scene: Scene, im_id: int, depth_dir: str, cameras: dict, noise: MaskNoise | None):
     """The observation a method sees and the ground truth T_cam_ee it is scored against."""
     frame = read_frame(scene.path, im_id)
-    mask = frame.mask_visib if noise is None else perturb(frame.mask_visib, noise,
-                                                            frame_rng(noise, scene.scene_id, im_id))
+    robot = None if frame.link_ids is None else frame.link_ids > 0
+    if noise is not None:  # the end-effector's draw first: runs from before robot masks see the same masks
+        rng = frame_rng(noise, scene.scene_id, im_id)
+        mask = perturb(frame.mask_visib, noise, rng)
+        robot = None if robot is None else perturb(robot, noise, rng)
+    else:
+        mask = frame.mask_visib
     depth = frame.depth
     if depth_dir != "depth":
         path = scene.path / depth_dir / f"{im_id:06d}.png"
@@ -115,7 +120,7 @@ def _observation(scene: Scene, im_id: int, depth_dir: str, cameras: dict, noise:
             raise UserError(f"{path}: missing; --depth-dir {depth_dir} needs that folder beside depth/ in every scene")
         depth = read_png(path) * (cameras[str(im_id)]["depth_scale"] / 1000.0)
     obs = Observation(im_id=im_id, rgb=frame.rgb, depth=depth, mask=mask, K=frame.K,
-                      joint_positions=frame.joint_positions, T_base_ee=frame.T_base_ee)
+                      joint_positions=frame.joint_positions, T_base_ee=frame.T_base_ee, robot_mask=robot)
     return obs, frame.T_cam_ee
 
 
@@ -347,6 +352,9 @@ def main(argv=None) -> int:
     parser.add_argument("--refine", choices=["none", "silhouette", "silhouette+depth"],
                         help="feepe option: refine the calibration on the key frames' masks, alone or with depth "
                              "over a sensor noise model (our extension, not in the paper; default none)")
+    parser.add_argument("--silhouette", choices=["ee", "robot"],
+                        help="feepe option: the outline --refine fits: the end-effector's mask (default, the paper's "
+                             "input) or the whole robot's (every arm link by FK; needs robot_mask_visib/ in the data set)")
     parser.add_argument("--layer", type=int, help="feepe option: DINOv2 block, counted from 0 as FoundPose (paper: 19 of ViT-L's 0..23)")
     parser.add_argument("--n-templates", type=int, help="feepe option: template set by count (default: largest)")
     parser.add_argument("--k-r", type=int, help="feepe option: reference templates per frame (paper: 5)")

@@ -42,6 +42,7 @@ class FrameCandidates:
     timings: dict = field(default_factory=dict)  # ms per stage
     cloud: np.ndarray | None = None  # (N, 3) masked depth points, camera frame (depth alignment only)
     silhouette: MaskView | None = None  # the frame's mask as a distance field (silhouette refinement only)
+    parts: np.ndarray | None = None  # (n, 4, 4) T_base of the parts that mask shows: the end-effector (, the arm links)
 
 
 @dataclass

@@ -23,13 +23,14 @@ from feepe.icp import PlaneTerm, SurfaceModel, associate, observed_cloud, sensor
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
-from feepe.silhouette import SilhouetteModel, contour_fit, contour_term, mask_view, mean_iou
+from feepe.silhouette import PartsSilhouette, SilhouetteModel, contour_fit, contour_term, mask_view, mean_iou
 from feepe.symmetry import consensus
 from syneepose.errors import UserError
 from syneepose.transforms import inv_T
 
 VARIANTS = ("A", "B", "C", "D")
 REFINEMENTS = ("none", "silhouette", "silhouette+depth")
+SILHOUETTES = ("ee", "robot")
 IOU_STRIDE = 2  # the refinement's decisions compare mask IoUs on every second pixel
 # The optimisation and the refinement multiply many small matrices (normal equations of N x 6 Jacobians,
 # N x 3 points by 3 x 3 rotations). OpenBLAS's threads cost more than they save there: a 10000 x 6 normal
@@ -48,6 +49,7 @@ class FeepeOptions:
     icp_gate_m: float = 0.02
     icp_sigma_m: float = 0.002
     refine: str = "none"  # "silhouette": our multi-frame mask alignment (feepe/silhouette.py); "+depth": with depth
+    silhouette: str = "ee"  # the outline fitted: "ee" (the paper's input, the end-effector's mask) or "robot"
     silhouette_sigmas_px: tuple = (4.0, 2.0, 1.0)  # coarse to fine: the robust kernel's scale per stage
     silhouette_rounds: int = 3  # contour re-extractions per stage
     silhouette_starts: int = 3  # starting calibrations refined; the best mask IoU is kept
@@ -69,6 +71,11 @@ class FeepeOptions:
             raise UserError(f"refinement {self.refine!r} unknown; choose one of {', '.join(REFINEMENTS)}")
         if self.refine != "none" and self.variant == "A":
             raise UserError("variant A is PnP only; silhouette refinement needs variant B, C or D")
+        if self.silhouette not in SILHOUETTES:
+            raise UserError(f"silhouette {self.silhouette!r} unknown; choose one of {', '.join(SILHOUETTES)}")
+        if self.silhouette != "ee" and self.refine == "none":
+            raise UserError(f"silhouette {self.silhouette!r} is what the refinement fits; it needs refine "
+                            "silhouette or silhouette+depth")
 
     @property
     def depth_in_refinement(self) -> bool:
@@ -88,6 +95,15 @@ def load_models(path: Path, opts: FeepeOptions) -> tuple[SurfaceModel | None, Si
 
 
 @dataclass
+class RobotView:
+    """The whole robot in one frame, for `silhouette="robot"`: its visible mask (every link and the
+    end-effector; a robot segmenter's output) and the arm links' poses from forward kinematics, in the
+    order of the `arm` models given to `Estimator.reset`."""
+    mask: np.ndarray  # (H, W) bool
+    T_base_links: np.ndarray  # (n, 4, 4) metres
+
+
+@dataclass
 class FrameResult:
     T_cam_ee: np.ndarray | None  # None: no estimate for this frame
     T_cam_base: np.ndarray | None
@@ -97,7 +113,7 @@ class FrameResult:
     timings: dict  # ms per stage and "total"
 
 
-SILHOUETTE_OPTIONS = ("refine", "silhouette_sigmas_px", "silhouette_rounds", "silhouette_starts",
+SILHOUETTE_OPTIONS = ("refine", "silhouette", "silhouette_sigmas_px", "silhouette_rounds", "silhouette_starts",
                       "silhouette_position_starts", "silhouette_switch_iou", "silhouette_min_sigma_px",
                       "silhouette_depth_tolerance",
                       "depth_sigma_m", "depth_sigma_z2")
@@ -137,8 +153,10 @@ class Estimator:
     def options(self) -> dict:
         return {**describe(self.opts, self.backbone), "n_templates": len(self.bank)}
 
-    def reset(self) -> None:
-        """Start a new sequence (a new camera placement): the memory and the last calibration go."""
+    def reset(self, arm: list[SilhouetteModel] | None = None) -> None:
+        """Start a new sequence (a new camera placement): the memory and the last calibration go. `arm`:
+        the arm links' meshes (link frames) that `silhouette="robot"` fits beside the end-effector."""
+        self.parts = PartsSilhouette([self.silhouette, *(arm or [])]) if self.silhouette is not None else None
         self.pool = MemoryPool(self.opts.memory_threshold_deg)
         self.T_cam_base: np.ndarray | None = None
         self.frame = 0
@@ -146,7 +164,9 @@ class Estimator:
         self.centres = CentreTrack(self.silhouette.mesh.bounds.mean(0)) if self.silhouette is not None else None
 
     def step(self, rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray,
-             T_base_ee: np.ndarray) -> FrameResult:
+             T_base_ee: np.ndarray, robot: RobotView | None = None) -> FrameResult:
+        """One frame, online. `mask` is the end-effector's visible mask; `robot` is needed for (and only
+        read by) the robot silhouette."""
         _check_inputs(rgb, depth, mask, K, T_base_ee)
         t_start = time.perf_counter()
         found = frame_candidates(rgb, depth, np.asarray(mask, bool), K, self.bank, self.backbone, self.opts.single)
@@ -155,7 +175,13 @@ class Estimator:
         if self.opts.needs_surface:
             found.cloud = observed_cloud(np.asarray(depth, float), np.asarray(mask, bool), K)
         if self.opts.refine != "none":
-            found.silhouette = mask_view(mask, K, depth)
+            if self.opts.silhouette == "robot":
+                robot = _check_robot(robot, mask.shape, len(self.parts.parts) - 1)
+                found.silhouette = mask_view(robot.mask, K, depth)
+                found.parts = np.concatenate([np.asarray(T_base_ee, float)[None], robot.T_base_links])
+            else:
+                found.silhouette = mask_view(mask, K, depth)
+                found.parts = np.asarray(T_base_ee, float)[None]
             if self.opts.silhouette_position_starts:
                 self.centres.add(T_base_ee, observed_centre(depth, mask, K))
         timings = dict(found.timings)
@@ -199,7 +225,7 @@ class Estimator:
             t0 = time.perf_counter()
             clouds = [(T_b, f.cloud) for T_b, f in views] if opts.depth_in_refinement else []
             starts = self._starts(T, T_base_ee, cands)
-            T = self._refine_silhouette(starts, [(T_b, f.silhouette) for T_b, f in views], clouds)
+            T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in views], clouds)
             timings["refinement"] = 1e3 * (time.perf_counter() - t0)
         score = float(np.sum(reprojection_px(T, stack(frames[:1])) <= opts.single.pnp_threshold_px))
         return T, score, len(frames) - 1
@@ -231,7 +257,7 @@ class Estimator:
         opts, sigmas, current = self.opts, self.opts.silhouette_sigmas_px, frames[:1]
 
         def fit(T: np.ndarray, views: list) -> float:
-            return mean_iou(self.silhouette, T, views, IOU_STRIDE)
+            return mean_iou(self.parts, T, views, IOU_STRIDE)
 
         warm = None
         if self.T_cam_base is not None:
@@ -260,7 +286,7 @@ class Estimator:
         T = self._solve(T, frames, sigmas, clouds)
         if clouds:
             T_masks = self._solve(T, frames, sigmas[-1:], [])
-            (with_depth, _), (masks, error) = (contour_fit(self.silhouette, X, frames) for X in (T, T_masks))
+            (with_depth, _), (masks, error) = (contour_fit(self.parts, X, frames) for X in (T, T_masks))
             if with_depth > masks + self.opts.silhouette_depth_tolerance * error:
                 return T_masks
         return T
@@ -273,7 +299,7 @@ class Estimator:
             # the range to depth, exact masks keep it (at the finest stage, down to min_sigma)
             floor = opts.silhouette_min_sigma_px if clouds and k == len(sigmas) - 1 else sigma
             for _ in range(opts.silhouette_rounds):
-                terms = [contour_term(self.silhouette, T, frames, floor, step_px=max(1.0, sigma / 2),
+                terms = [contour_term(self.parts, T, frames, floor, step_px=max(1.0, sigma / 2),
                                       measured=bool(clouds))]
                 if clouds:
                     planes = associate(T, clouds, self.model, opts.icp_gate_m)
@@ -290,6 +316,19 @@ def _init_from(frames) -> np.ndarray:
     """The calibration implied by the candidate with the most inliers among the frames."""
     T_base_ee, _, c = max(((T, K, c) for T, K, cs in frames for c in cs), key=lambda f: f[2].n_inliers)
     return c.T_cam_ee @ inv_T(T_base_ee)
+
+
+def _check_robot(robot: RobotView | None, shape: tuple, n_links: int) -> RobotView:
+    if n_links == 0:
+        raise UserError("silhouette 'robot' needs the arm's link meshes: reset(arm=[SilhouetteModel(...), ...])")
+    if robot is None:
+        raise UserError("silhouette 'robot' needs each frame's robot view: step(..., robot=RobotView(mask, T_base_links))")
+    mask, T = np.asarray(robot.mask, bool), np.asarray(robot.T_base_links, float)
+    if mask.shape != tuple(shape):
+        raise UserError(f"the robot mask is {mask.shape}, the end-effector mask {tuple(shape)}; pass both for the RGB image")
+    if T.shape != (n_links, 4, 4):
+        raise UserError(f"T_base_links is {T.shape}, expected ({n_links}, 4, 4): one pose per arm link given to reset(arm=...)")
+    return RobotView(mask, T)
 
 
 def _check_inputs(rgb, depth, mask, K, T_base_ee) -> None:

@@ -1,5 +1,7 @@
 """Silhouette alignment (our extension, issue 13; not in the paper): the end-effector model's occluding
-contour, projected under the shared camera-to-base pose, laid onto each key frame's observed mask.
+contour, projected under the shared camera-to-base pose, laid onto each key frame's observed mask - or,
+given the robot's mask and link poses, the whole robot's outline (every arm link's mesh placed by forward
+kinematics, as EasyHeC fits the whole arm's mask; here by contour distance, not differentiable rendering).
 
 The mask is the one input no depth noise touches. Each key frame keeps the signed distance to its mask
 boundary; the model's outer contour points (rim edges of the mesh whose outside neighbour pixel misses
@@ -38,8 +40,8 @@ class MaskView:
     mask: np.ndarray  # (H, W) bool
     K: np.ndarray  # (3, 3) full-image intrinsics
     depth: np.ndarray | None = None  # (H, W) metres, 0 unknown; None: no occlusion reasoning
-    # the last contour extracted on this frame per point spacing: (T_cam_ee, visible model points). A new
-    # key frame moves the calibration a little; the other frames' outlines then stay where they were.
+    # the last contour extracted on this frame per point spacing: (T_cam_parts, visible model points per
+    # part). A new key frame moves the calibration a little; the other frames' outlines then stay put.
     contours: dict = field(default_factory=dict, repr=False)
 
     def occluded(self, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -110,9 +112,10 @@ class SilhouetteModel:
         return cls(mesh)
 
     def contour(self, T_cam_ee: np.ndarray, K: np.ndarray, shape: tuple[int, int],
-                step_px: float = 1.0, probe_px: float = 0.3) -> np.ndarray:
+                step_px: float = 1.0, probe_px: float = 0.3, others: list | None = None) -> np.ndarray:
         """Model-frame points on the outer occluding contour of the model seen at `T_cam_ee`, about one
-        per `step_px` of image length."""
+        per `step_px` of image length. `others`: (SilhouetteModel, T_cam_model) of the robot's other parts;
+        a point counts only where the pixel just outside it misses them too (the union's outline)."""
         T_ee_cam = inv_T(T_cam_ee)
         eye = T_ee_cam[:3, 3]
         rim = np.flatnonzero((self.o1 > self.n1 @ eye) != (self.o2 > self.n2 @ eye))  # one face seen, one not
@@ -147,7 +150,15 @@ class SilhouetteModel:
         P, probe = P[inside], probe[inside]
         rays = backproject(probe, np.ones(len(probe)), K) @ T_ee_cam[:3, :3].T
         hit = self.rays.intersects_any(np.broadcast_to(eye, rays.shape).copy(), rays)
-        return P[~hit]
+        P, rays = P[~hit], rays[~hit]
+        for other, T_cam_other in others or ():
+            if not len(P):
+                break
+            T_other_ee = inv_T(T_cam_other) @ T_cam_ee
+            o_eye, o_rays = transform_points(T_other_ee, eye[None])[0], rays @ T_other_ee[:3, :3].T
+            covered = other.rays.intersects_any(np.broadcast_to(o_eye, o_rays.shape).copy(), o_rays)
+            P, rays = P[~covered], rays[~covered]
+        return P
 
     def render(self, T_cam_ee: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """The model's mask at pixel centres (as a one-sample index pass), by ray casting."""
@@ -192,6 +203,37 @@ class SilhouetteModel:
         return T_ee_cam[:3, 3], rays, np.s_[v0:v1, u0:u1]
 
 
+class PartsSilhouette:
+    """What a mask shows, as meshes: the end-effector alone, or the robot (the end-effector first, then the
+    arm links). Frame data give each part's pose in the base frame, `T_base_parts` (n, 4, 4), from FK."""
+
+    def __init__(self, parts: list[SilhouetteModel]):
+        self.parts = list(parts)
+
+    def contours(self, T_cam_parts: np.ndarray, K: np.ndarray, shape: tuple[int, int],
+                 step_px: float) -> list[np.ndarray]:
+        """Each part's model-frame points on the outline of the union of all parts."""
+        placed = list(zip(self.parts, T_cam_parts))
+        return [m.contour(T, K, shape, step_px, others=[o for j, o in enumerate(placed) if j != i])
+                for i, (m, T) in enumerate(placed)]
+
+    def render_depth(self, T_cam_parts: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """The nearest part's depth at each pixel centre (m, 0 off the robot)."""
+        z = np.zeros(shape)
+        for m, T in zip(self.parts, T_cam_parts):
+            zi = m.render_depth(T, K, shape)
+            z = np.where((zi > 0) & ((z == 0) | (zi < z)), zi, z)
+        return z
+
+    def motion_px(self, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
+        return max(image_motion_px(m, a, b, K) for m, a, b in zip(self.parts, T_a, T_b))
+
+
+def placed(T_cam_base: np.ndarray, T_base_parts: np.ndarray) -> np.ndarray:
+    """Each part's pose in the camera, (n, 4, 4)."""
+    return np.einsum("ij,njk->nik", T_cam_base, T_base_parts)
+
+
 class SilhouetteTerm:
     """Residuals: each contour point's signed distance to its frame's mask boundary, over `sigma_px`.
 
@@ -219,16 +261,16 @@ class SilhouetteTerm:
         return e, (g[:, None, :] @ dpi @ point_jacobian(Q)) / self.sigma_px
 
 
-def contour_term(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
+def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
                  sigma_px: float, step_px: float = 1.0, measured: bool = False) -> SilhouetteTerm:
-    """frames: (T_base_ee, MaskView) each; the contours are those at the current pose. `measured`: the
+    """frames: (T_base_parts, MaskView) each; the contours are those at the current pose. `measured`: the
     scale is at least the residuals' robust spread at this pose (1.4826 x median), so masks that a
     segmenter got a few pixels wrong pull less against depth than exact ones."""
     points, view = [], []
-    for i, (T_base_ee, mv) in enumerate(frames):
-        P = visible_contour(model, T_cam_base @ T_base_ee, mv, step_px)
-        points.append(transform_points(T_base_ee, P))
-        view.append(np.full(len(P), i))
+    for i, (T_base_parts, mv) in enumerate(frames):
+        for T_base_part, P in zip(T_base_parts, visible_contour(model, placed(T_cam_base, T_base_parts), mv, step_px)):
+            points.append(transform_points(T_base_part, P))
+            view.append(np.full(len(P), i))
     term = SilhouetteTerm(np.concatenate(points), np.concatenate(view), [mv for _, mv in frames], sigma_px)
     if measured and len(term.view):
         spread = 1.4826 * float(np.median(np.abs(term.residuals(T_cam_base, False)[0]))) * sigma_px
@@ -236,17 +278,19 @@ def contour_term(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tu
     return term
 
 
-def visible_contour(model: SilhouetteModel, T_cam_ee: np.ndarray, mv: MaskView, step_px: float) -> np.ndarray:
-    """Model-frame contour points of one frame that nothing in front hides, extracted again only when the
-    model has moved more than REUSE_PX in the image since the frame's last extraction."""
+def visible_contour(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView,
+                    step_px: float) -> list[np.ndarray]:
+    """Each part's model-frame contour points in one frame that nothing in front hides, extracted again only
+    when a part has moved more than REUSE_PX in the image since the frame's last extraction."""
     last = mv.contours.get(step_px)
-    if last is not None and image_motion_px(model, last[0], T_cam_ee, mv.K) <= REUSE_PX:
+    if last is not None and model.motion_px(last[0], T_cam_parts, mv.K) <= REUSE_PX:
         return last[1]
-    P = model.contour(T_cam_ee, mv.K, mv.sdt.shape, step_px)
-    Pc = transform_points(T_cam_ee, P)
-    P = P[~mv.occluded(_project(Pc, mv.K), Pc[:, 2])]  # hidden by what stands in front: no evidence
-    mv.contours[step_px] = (T_cam_ee.copy(), P)
-    return P
+    out = []
+    for T_cam_part, P in zip(T_cam_parts, model.contours(T_cam_parts, mv.K, mv.sdt.shape, step_px)):
+        Pc = transform_points(T_cam_part, P)
+        out.append(P[~mv.occluded(_project(Pc, mv.K), Pc[:, 2])])  # hidden by what stands in front: no evidence
+    mv.contours[step_px] = (T_cam_parts.copy(), out)
+    return out
 
 
 def image_motion_px(model: SilhouetteModel, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
@@ -259,7 +303,7 @@ def image_motion_px(model: SilhouetteModel, T_a: np.ndarray, T_b: np.ndarray, K:
     return float(max(K[0, 0], K[1, 1]) * (np.linalg.norm(b - a) + np.arccos(cos) * model.radius) / near)
 
 
-def contour_fit(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
+def contour_fit(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
                 cap_px: float = 3.0) -> tuple[float, float]:
     """Mean distance (px) of the contour points from their masks' boundaries (capped against outliers),
     and its standard error with frames, not points, as the independent samples: a segmenter's error runs
@@ -269,19 +313,18 @@ def contour_fit(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tup
     return (float(d.mean()), float(d.std() / np.sqrt(len(frames)))) if len(d) > 1 else (0.0, np.inf)
 
 
-def mean_iou(model: SilhouetteModel, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
+def mean_iou(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
              stride: int = 1) -> float:
     """How well a calibration explains every frame's mask: the mean mask IoU, on every `stride`-th pixel
     of each row and column (stride 2 ranks poses as well at a quarter of the rays)."""
     scale = np.diag([1.0 / stride, 1.0 / stride, 1.0])
     ious = []
-    for T_base_ee, mv in frames:
-        T_cam_ee = T_cam_base @ T_base_ee
+    for T_base_parts, mv in frames:
         seen = mv.mask[::stride, ::stride]
+        z_model = model.render_depth(placed(T_cam_base, T_base_parts), scale @ mv.K, seen.shape)
         if mv.depth is None:
-            ious.append(iou(model.render(T_cam_ee, scale @ mv.K, seen.shape), seen))
+            ious.append(iou(z_model > 0, seen))
             continue
-        z_model = model.render_depth(T_cam_ee, scale @ mv.K, seen.shape)
         depth = mv.depth[::stride, ::stride]  # model pixels that something nearer covers cannot be judged
         hidden = (depth > 0) & (depth < z_model - OCCLUDER_MARGIN_M) & ~seen
         ious.append(iou((z_model > 0) & ~hidden, seen))

@@ -7,17 +7,17 @@ import numpy as np
 import pytest
 import trimesh
 
-from feepe.estimator import Estimator, FeepeOptions, describe
+from feepe.estimator import Estimator, FeepeOptions, RobotView, describe
 from feepe.backbones import DEFAULT, get_backbone
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
 from feepe.optimize import _step
-from feepe.silhouette import (REUSE_PX, SilhouetteModel, SilhouetteTerm, contour_term, image_motion_px, mask_view,
-                              mean_iou, sample, visible_contour)
+from feepe.silhouette import (REUSE_PX, PartsSilhouette, SilhouetteModel, SilhouetteTerm, contour_term,
+                              image_motion_px, mask_view, mean_iou, sample, visible_contour)
 from syneepose.bop import read_frame, read_scene, split_dir
 from syneepose.errors import UserError
 from syneepose.templates import find_template_set
-from syneepose.transforms import transform_points
+from syneepose.transforms import inv_T, transform_points
 
 K = np.array([[300.0, 0, 80], [0, 300.0, 60], [0, 0, 1]])
 
@@ -70,27 +70,27 @@ def test_image_motion_bound_covers_every_vertex():
 
 
 def test_a_frames_contour_is_reused_until_the_model_moves_half_a_pixel():
-    model = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
-    T = _box_pose()
-    view = mask_view(model.render(T, K, (120, 160)), K)
-    first = visible_contour(model, T, view, 1.0)
+    box = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
+    model, T = PartsSilhouette([box]), _box_pose()
+    view = mask_view(box.render(T, K, (120, 160)), K)
+    first = visible_contour(model, T[None], view, 1.0)
     near = _step(T, np.array([0, 0, 0, 0.1 * REUSE_PX * 0.5 / 300, 0, 0]))
-    assert visible_contour(model, near, view, 1.0) is first
+    assert visible_contour(model, near[None], view, 1.0) is first
     far = _step(T, np.array([0.05, 0, 0, 0, 0, 0]))
-    again = visible_contour(model, far, view, 1.0)
-    assert again is not first and len(again) and np.array_equal(view.contours[1.0][0], far)
+    again = visible_contour(model, far[None], view, 1.0)
+    assert again is not first and len(again[0]) and np.array_equal(view.contours[1.0][0], far[None])
 
 
 def test_measured_scale_follows_how_well_the_masks_fit():
     """Beside depth, an exactly fitting mask keeps the floor scale and a mask whose outline is 3 px off
     (a segmenter's error) gets 1.4826 x its median distance, about 4.4 px."""
-    model = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
-    T = _box_pose()
-    exact = model.render(T, K, (120, 160))
+    box = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
+    model, T = PartsSilhouette([box]), _box_pose()
+    exact = box.render(T, K, (120, 160))
     grown = cv2.dilate(exact.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))) > 0
-    frames = [(np.eye(4), mask_view(exact, K))]
+    frames = [(np.eye(4)[None], mask_view(exact, K))]
     assert contour_term(model, T, frames, 0.25, measured=True).sigma_px < 0.6
-    frames = [(np.eye(4), mask_view(grown, K))]
+    frames = [(np.eye(4)[None], mask_view(grown, K))]
     assert 3.5 < contour_term(model, T, frames, 0.25, measured=True).sigma_px < 5.0
     assert contour_term(model, T, frames, 0.25).sigma_px == 0.25
 
@@ -102,18 +102,18 @@ def _project(P):
 def test_an_occluder_in_front_is_not_taken_for_the_outline():
     """A bar 10 cm in front hides the box's left third: with the frame's depth, the true pose still scores
     IoU ~1 and no contour point is kept under the bar; without depth, the cut outline looks like a misfit."""
-    model = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
-    T = _box_pose()
-    depth = model.render_depth(T, K, (120, 160))
+    box = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
+    model, T = PartsSilhouette([box]), _box_pose()
+    depth = box.render_depth(T, K, (120, 160))
     assert abs(np.median(depth[depth > 0]) - 0.5) < 0.03
     cols = np.nonzero(depth.any(0))[0]
     bar = np.zeros_like(depth, bool)
     bar[:, : cols[0] + (cols[-1] - cols[0]) // 3] = True
     visible = (depth > 0) & ~bar
     depth = np.where(bar, 0.4, depth)
-    frames = [(np.eye(4), mask_view(visible, K, depth))]
+    frames = [(np.eye(4)[None], mask_view(visible, K, depth))]
     assert mean_iou(model, T, frames) > 0.99
-    assert mean_iou(model, T, [(np.eye(4), mask_view(visible, K))]) < 0.8
+    assert mean_iou(model, T, [(np.eye(4)[None], mask_view(visible, K))]) < 0.8
     term = contour_term(model, T, frames, 1.0)
     uv = transform_points(T, term.base_points)[:, :2] / transform_points(T, term.base_points)[:, 2:] * 300 + [80, 60]
     assert len(uv) > 50 and not bar[np.round(uv[:, 1]).astype(int), np.round(uv[:, 0]).astype(int)].any()
@@ -127,6 +127,10 @@ def test_paper_variants_keep_their_identity_and_options_are_checked():
         FeepeOptions(refine="edges")
     with pytest.raises(UserError, match="variant A is PnP only"):
         FeepeOptions(variant="A", refine="silhouette")
+    with pytest.raises(UserError, match="silhouette 'arm' unknown"):
+        FeepeOptions(refine="silhouette", silhouette="arm")
+    with pytest.raises(UserError, match="needs refine silhouette"):
+        FeepeOptions(silhouette="robot")
 
 
 @pytest.mark.parametrize("refine", ["silhouette", "silhouette+depth"])
@@ -147,3 +151,56 @@ def test_refinement_pulls_a_wrong_calibration_onto_the_masks(tiny_dataset, refin
         r = est.step(f.rgb, f.depth, f.mask_visib, f.K, f.T_base_ee)
         errors.append(np.linalg.norm(r.T_cam_ee[:3, 3] - f.T_cam_ee[:3, 3]))
     assert np.median(errors) < 0.5 * np.median(start), (errors, start)
+
+
+def test_robot_silhouette_pulls_a_wrong_calibration_onto_the_robot_mask(tiny_dataset):
+    """The same start as above, fitted to the whole robot's mask (arm links by FK from the URDF): the
+    calibration comes within 1 cm and 1 deg on every frame; without the robot view it is one clear error."""
+    from eval.methods.feepe import link_mesh
+    from syneepose.robots.robot import load_robot
+
+    scene = next(s for s in sorted(split_dir(tiny_dataset).iterdir()) if read_scene(s)[0].end_effector == "robotiq_2f85")
+    meta, ids = read_scene(scene)
+    robot = load_robot(f"{meta.arm}+{meta.end_effector}")
+    ply = tiny_dataset / "models" / f"obj_{meta.obj_id:06d}.ply"
+    net = get_backbone(DEFAULT)
+    bank = onboard(find_template_set(tiny_dataset / "templates", meta.end_effector, None), net)
+    est = Estimator(bank, net, FeepeOptions(refine="silhouette", silhouette="robot"), None, SilhouetteModel.from_ply(ply))
+    f = read_frame(scene, ids[0])
+    with pytest.raises(UserError, match="needs the arm's link meshes"):
+        est.step(f.rgb, f.depth, f.mask_visib, f.K, f.T_base_ee)
+    est.reset(arm=[SilhouetteModel(link_mesh(robot, name)) for name in meta.links[:-1]])
+    with pytest.raises(UserError, match="needs each frame's robot view"):
+        est.step(f.rgb, f.depth, f.mask_visib, f.K, f.T_base_ee)
+    est.T_cam_base = _step(meta.T_cam_base, np.array([0.03, -0.03, 0.02, 0.015, -0.01, 0.01]))
+    for i in ids:
+        f = read_frame(scene, i)
+        T_base_link = robot.T_base_link(f.joint_positions)
+        view = RobotView(f.link_ids > 0, np.stack([T_base_link[name] for name in meta.links[:-1]]))
+        r = est.step(f.rgb, f.depth, f.mask_visib, f.K, f.T_base_ee, view)
+        dT = inv_T(meta.T_cam_base) @ r.T_cam_base
+        angle = np.degrees(np.arccos(np.clip((np.trace(dT[:3, :3]) - 1) / 2, -1, 1)))
+        assert np.linalg.norm(dT[:3, 3]) < 0.01 and angle < 1.0, (i, dT[:3, 3], angle)
+
+
+def test_robot_parts_fit_the_outline_of_their_union():
+    """Two boxes, one half in front of the other (an arm link and a gripper): each part keeps only the
+    contour points on the union's outline - none where the other part covers or borders it - and the
+    true pose fits the union mask while the end-effector alone would not explain it."""
+    ee, link = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05))), SilhouetteModel(trimesh.creation.box((0.15, 0.03, 0.03)))
+    model, T = PartsSilhouette([ee, link]), _box_pose()
+    T_link = T.copy()
+    T_link[:3, 3] += [0.06, 0.01, 0.03]  # behind and to the right, overlapping in the image
+    T_parts = np.stack([T, T_link])
+    union = model.render_depth(T_parts, K, (120, 160)) > 0
+    alone = ee.render(T, K, union.shape)
+    assert union.sum() > 1.5 * alone.sum()
+    view = mask_view(union, K)
+    for part, T_part, P in zip(model.parts, T_parts, visible_contour(model, T_parts, view, 1.0)):
+        uv = _project(transform_points(T_part, P))
+        d = sample(view.sdt, uv)
+        assert len(P) > 30 and np.mean(np.abs(d) < 1.0) > 0.95
+        assert len(P) < 0.9 * len(part.contour(T_part, K, union.shape))  # the shared border is dropped
+    frames = [(T_parts, view)]  # the camera is the base frame here
+    assert mean_iou(model, np.eye(4), frames) > 0.99
+    assert mean_iou(PartsSilhouette([ee]), np.eye(4), [(T_parts[:1], view)]) < 0.7

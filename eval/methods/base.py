@@ -21,6 +21,7 @@ class Observation:
     K: np.ndarray  # (3, 3)
     joint_positions: np.ndarray  # (n,)
     T_base_ee: np.ndarray  # (4, 4) metres, forward kinematics of the joint positions
+    robot_mask: np.ndarray | None = None  # (H, W) bool: the visible robot, arm and end-effector (None: not rendered)
 
 
 @dataclass

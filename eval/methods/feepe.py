@@ -3,20 +3,26 @@
 Templates come from `<dataset>/templates/<ee>_<views>x<inplane>_<res>px/` (python -m syneepose templates)
 or from `--templates-dir`; `--n-templates` picks a set by count when several were rendered (default: the
 largest count, then the largest resolution). `--icp` adds our depth-alignment extension, which reads the
-end-effector model from `<dataset>/models/`.
+end-effector model from `<dataset>/models/`. `--silhouette robot` has the refinement fit the whole robot's
+mask: the arm links' meshes come from the robot assets (the URDF the data set was rendered from) and their
+poses from forward kinematics of each frame's joint positions, as a user with the robot's URDF has them.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+import trimesh
+
 from eval.methods import register
 from eval.methods.base import Estimate, Observation
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import SingleFrameOptions
-from feepe.estimator import Estimator, FeepeOptions, describe, load_models
+from feepe.estimator import Estimator, FeepeOptions, RobotView, describe, load_models
 from feepe.onboarding import onboard
+from feepe.silhouette import SilhouetteModel
 from syneepose.bop import SceneMeta
 from syneepose.errors import UserError
 from syneepose.templates import find_template_set
@@ -26,10 +32,10 @@ class Feepe:
     def __init__(self, variant: str = "D", backbone: str = DEFAULT_BACKBONE, layer: int | None = None,
                  n_templates: int | None = None, k_r: int = 5, k_f: int = 8, backbone_weights: str | None = None,
                  templates_dir: str | None = None, icp: bool = False, bow_assignment: str = "foundpose",
-                 refine: str = "none"):
+                 refine: str = "none", silhouette: str = "ee"):
         if bow_assignment not in ("foundpose", "gaussian"):
             raise UserError(f"--bow-assignment {bow_assignment!r}: foundpose (FoundPose's) or gaussian (ours)")
-        self.opts = FeepeOptions(variant=variant, k_f=k_f, icp=icp, refine=refine,
+        self.opts = FeepeOptions(variant=variant, k_f=k_f, icp=icp, refine=refine, silhouette=silhouette,
                                  single=SingleFrameOptions(k_r=k_r))
         self.bow_assignment = bow_assignment
         kwargs = {}
@@ -41,10 +47,14 @@ class Feepe:
         self.n_templates, self.templates_dir = n_templates, templates_dir
         self._estimators: dict[str, Estimator] = {}
         self._current: Estimator | None = None
+        self._arms: dict[str, tuple] = {}  # config -> (Robot, arm link names, their silhouette models)
+        self._arm = None
 
     def options(self) -> dict:
         """The table keys first (variant, backbone, layer, n_templates, k_r, k_f), then every detail."""
         refine = {"refine": self.opts.refine} if self.opts.refine != "none" else {}  # absent: old runs resume
+        if self.opts.silhouette != "ee":
+            refine["silhouette"] = self.opts.silhouette
         return {"variant": self.opts.variant, "icp": self.opts.icp, **refine, "backbone": self.backbone.name,
                 "layer": self.backbone.options().get("layer"), "n_templates": self.n_templates,
                 "k_r": self.opts.single.k_r, "k_f": self.opts.k_f, "bow_assignment": self.bow_assignment,
@@ -66,9 +76,41 @@ class Feepe:
             model, silhouette = load_models(model_ply[0], self.opts) if model_ply else (None, None)
             self._estimators[ee] = Estimator(bank, self.backbone, self.opts, model, silhouette)
         self._current = self._estimators[ee]
-        self._current.reset()
+        self._arm = self._arm_models(meta) if self.opts.silhouette == "robot" else None
+        self._current.reset(arm=self._arm[2] if self._arm else None)
+
+    def _arm_models(self, meta: SceneMeta) -> tuple:
+        from syneepose.robots.robot import load_robot
+
+        config = f"{meta.arm}+{meta.end_effector}"
+        if not meta.links:
+            raise UserError(f"--silhouette robot needs the robot's visible mask, robot_mask_visib/, which this "
+                            f"{config} scene lacks (rendered before it existed); render the data set again")
+        if config not in self._arms:
+            robot = load_robot(config)
+            links = meta.links[:-1]  # the last part is the end-effector, fitted by its BOP model
+            self._arms[config] = (robot, links, [SilhouetteModel(link_mesh(robot, name)) for name in links])
+        return self._arms[config]
 
     def estimate(self, obs: Observation) -> Estimate:
-        r = self._current.step(obs.rgb, obs.depth, obs.mask, obs.K, obs.T_base_ee)
+        robot = None
+        if self._arm is not None:
+            if obs.robot_mask is None:
+                raise UserError(f"frame {obs.im_id}: --silhouette robot needs its robot mask (robot_mask_visib/)")
+            arm, links, _ = self._arm
+            T_base_link = arm.T_base_link(obs.joint_positions)
+            robot = RobotView(obs.robot_mask, np.stack([T_base_link[name] for name in links]))
+        r = self._current.step(obs.rgb, obs.depth, obs.mask, obs.K, obs.T_base_ee, robot)
         return Estimate(T_cam_ee=r.T_cam_ee, score=r.score, time_s=r.timings["total"] / 1000.0,
                         T_cam_base=r.T_cam_base, extra={"timings_ms": r.timings, "n_key_frames": r.n_key_frames})
+
+
+def link_mesh(robot, name: str) -> trimesh.Trimesh:
+    """One arm link's visual meshes in its link frame (metres), vertices merged so edges know both faces."""
+    parts = []
+    for visual in robot.model.link(name).visuals:
+        part = trimesh.load(str(robot.urdf.parent / visual.mesh), force="mesh")
+        parts.append(part.apply_transform(visual.origin))
+    mesh = trimesh.util.concatenate(parts)
+    mesh.merge_vertices()
+    return mesh
