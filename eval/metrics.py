@@ -115,6 +115,10 @@ class CalibrationError:
     points_mm: np.ndarray  # (n, k) per workspace point
 
 
+# Targets on a 0.4 m square at table height in front of the robot, and its centre (base frame, metres).
+WORKSPACE_POINTS = np.array([[0.5, 0.0, 0.05], [0.3, 0.2, 0.05], [0.3, -0.2, 0.05], [0.7, 0.2, 0.05],
+                             [0.7, -0.2, 0.05]])
+
 def calibration_error(T_cam_base_est, T_cam_base_gt, points_base: np.ndarray) -> CalibrationError:
     """Error of a camera-to-base calibration, plus where it sends workspace points (the paper's targeting
     test): a point p seen by the camera at T_gt p is mapped back to the base by inv(T_est); error |. - p|."""

@@ -31,6 +31,7 @@ class FrameErrors:
     time_s: float  # the method's own time (BOP `time`), -1 unknown
     score: float
     wall_s: float  # the runner's clock around the method's `estimate` call
+    calib_points_mm: float = math.nan  # calibration error at eval.metrics.WORKSPACE_POINTS (mean distance)
 
     @property
     def failed(self) -> bool:
@@ -38,6 +39,7 @@ class FrameErrors:
 
 
 COLUMNS = [f.name for f in fields(FrameErrors)]
+ADDED = ("calib_points_mm",)  # columns later than the first errors.csv files: absent reads as unknown
 _INTS, _STRS = {"scene_id", "im_id", "obj_id"}, {"config", "end_effector"}
 
 
@@ -70,9 +72,10 @@ def read_errors(path: Path) -> list[FrameErrors]:
         raise UserError(f"{path}: missing; it is written by python -m eval.run")
     with path.open(newline="") as f:
         reader = csv.DictReader(f)
-        if reader.fieldnames != COLUMNS:
+        names = reader.fieldnames or []
+        if names != COLUMNS and names != [c for c in COLUMNS if c not in ADDED]:
             raise UserError(f"{path}: columns {reader.fieldnames} are not those of python -m eval.run; run it again")
         try:
-            return [FrameErrors(**{name: _value(name, row[name]) for name in COLUMNS}) for row in reader]
+            return [FrameErrors(**{name: _value(name, row[name]) for name in names}) for row in reader]
         except (TypeError, ValueError) as exc:
             raise UserError(f"{path}:{reader.line_num}: {exc}; run python -m eval.run again") from None

@@ -29,7 +29,7 @@ from eval.methods import get_method
 from eval.methods.base import Estimate, Observation
 from eval.mask_noise import MaskNoise, frame_rng, mask_noise, perturb
 from eval.fingerprint import differences, only_scoring_changed, read_fingerprint, scene_fingerprint
-from eval.metrics import add, adds, rotation_error_deg, translation_error_mm
+from eval.metrics import WORKSPACE_POINTS, add, adds, calibration_error, rotation_error_deg, translation_error_mm
 from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
@@ -142,13 +142,14 @@ def score_scene(scene: Scene, T_gt: np.ndarray, estimates: list[Estimate], wall_
     add_m, adds_m = _pose_errors(scene, scene.im_ids, T_est, T_gt, model)
     rot, trans = rotation_error_deg(T_est, T_gt), translation_error_mm(T_est, T_gt)
     T_cam_base = scene.meta.T_cam_base
-    calib_trans, calib_rot = translation_error_mm(T_base, T_cam_base), rotation_error_deg(T_base, T_cam_base)
+    calib = calibration_error(T_base, T_cam_base, WORKSPACE_POINTS)
+    calib_trans, calib_rot, calib_points = calib.trans_mm, calib.rot_deg, calib.points_mm.mean(axis=1)
     return [FrameErrors(scene_id=scene.scene_id, im_id=im_id, obj_id=scene.meta.obj_id, config=scene.config,
                         end_effector=scene.meta.end_effector, add_m=float(add_m[i]), adds_m=float(adds_m[i]),
                         rot_err_deg=float(rot[i]), trans_err_mm=float(trans[i]),
                         calib_trans_mm=float(calib_trans[i]), calib_rot_deg=float(calib_rot[i]),
                         time_s=float(e.time_s), score=float(e.score) if e.T_cam_ee is not None else np.nan,
-                        wall_s=wall_s[i])
+                        wall_s=wall_s[i], calib_points_mm=float(calib_points[i]))
             for i, (im_id, e) in enumerate(zip(scene.im_ids, estimates))]
 
 

@@ -43,6 +43,15 @@ def _ms(values: list[float]) -> float | None:
     return float(np.mean(known) * 1000.0) if known else None
 
 
+def _calibration_at(rows: list[FrameErrors], im_id: int) -> dict | None:
+    """The calibration each segment has after im_id + 1 frames (the issue's "from 15 frames")."""
+    here = [r for r in rows if r.im_id == im_id]
+    if not here:
+        return None
+    return {"n_segments": len(here), "points_mm": _stats([r.calib_points_mm for r in here]),
+            "rot_deg": _stats([r.calib_rot_deg for r in here])}
+
+
 def summarise(rows: list[FrameErrors]) -> dict:
     per_ee = _grouped(rows, "end_effector")
     metric_keys = [k for k in next(iter(per_ee.values())) if "@" in k]
@@ -54,7 +63,9 @@ def summarise(rows: list[FrameErrors]) -> dict:
         "per_config": _grouped(rows, "config"),
         "calibration": {"n_frames": sum(not math.isnan(r.calib_trans_mm) for r in rows),
                         "trans_mm": _stats([r.calib_trans_mm for r in rows]),
-                        "rot_deg": _stats([r.calib_rot_deg for r in rows])},
+                        "rot_deg": _stats([r.calib_rot_deg for r in rows]),
+                        "points_mm": _stats([r.calib_points_mm for r in rows]),
+                        "frame_15": _calibration_at(rows, 14)},
         "ms_per_frame": _ms([r.time_s for r in rows]),
         "wall_ms_per_frame": _ms([r.wall_s for r in rows]),
     }

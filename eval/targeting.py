@@ -24,7 +24,7 @@ from tqdm import tqdm
 from syneepose.cli import run_command
 from eval.handeye import BoardDetector, calibrate
 from syneepose.templates import find_template_set
-from eval.metrics import calibration_error
+from eval.metrics import WORKSPACE_POINTS, calibration_error
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.estimator import Estimator, FeepeOptions
@@ -34,9 +34,6 @@ from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir, write_a
 from syneepose.errors import UserError
 from syneepose.scene.marker import MarkerBoard
 
-# Targets on a 0.4 m square at table height in front of the robot, and its centre (base frame, metres).
-WORKSPACE_POINTS = np.array([[0.5, 0.0, 0.05], [0.3, 0.2, 0.05], [0.3, -0.2, 0.05], [0.7, 0.2, 0.05],
-                             [0.7, -0.2, 0.05]])
 VIEWS = (3, 5, 10, 15, 20)
 FIELDS = ("method", "scene_id", "config", "views", "draw", "points_mm", "rot_deg", "detected")
 

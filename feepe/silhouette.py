@@ -28,6 +28,7 @@ BORDER_PX = 2  # contour points this close to the image border are dropped: the 
 
 
 OCCLUDER_MARGIN_M = 0.03  # observed depth this much nearer than the model there: something stands in front
+NEAR_M = 0.05  # contour edges nearer the camera than this are left out (a link can reach behind it)
 REUSE_PX = 0.5  # a frame's contour is extracted again once the model has moved this far in its image
 
 
@@ -121,7 +122,10 @@ class SilhouetteModel:
         rim = np.flatnonzero((self.o1 > self.n1 @ eye) != (self.o2 > self.n2 @ eye))  # one face seen, one not
         V = self.mesh.vertices
         a, b = V[self.edges[rim, 0]], V[self.edges[rim, 1]]
-        ua, ub = _project(transform_points(T_cam_ee, a), K), _project(transform_points(T_cam_ee, b), K)
+        ca, cb = transform_points(T_cam_ee, a), transform_points(T_cam_ee, b)
+        front = (ca[:, 2] > NEAR_M) & (cb[:, 2] > NEAR_M)  # an arm link may reach behind the camera
+        rim, a, b = rim[front], a[front], b[front]
+        ua, ub = _project(ca[front], K), _project(cb[front], K)
         # most rims lie inside the silhouette: keep edges that come near the rendered mask's boundary
         near = cv2.distanceTransform(self.render(T_cam_ee, K, shape).astype(np.uint8), cv2.DIST_L2, 3) <= 2.5
         near = np.pad(near, 1, constant_values=True)
@@ -133,7 +137,8 @@ class SilhouetteModel:
         a, b, ua, ub, normal = a[keep], b[keep], ua[keep], ub[keep], self.outward[rim[keep]]
         if len(a) == 0:
             return np.zeros((0, 3))
-        n = np.maximum(1, np.ceil(np.linalg.norm(ub - ua, axis=1) / step_px)).astype(int)
+        length = np.minimum(np.linalg.norm(ub - ua, axis=1), sum(shape))  # longer edges leave the image
+        n = np.maximum(1, np.ceil(length / step_px)).astype(int)
         edge = np.repeat(np.arange(len(a)), n)
         t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / np.repeat(n, n)
         P = a[edge] + t[:, None] * (b[edge] - a[edge])

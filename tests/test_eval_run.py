@@ -17,9 +17,10 @@ from eval import run
 from eval.bop_results import HEADER, read_results
 from eval.methods import register
 from eval.methods.base import Estimate
+from eval.metrics import WORKSPACE_POINTS, calibration_error
 from eval.model_points import MAX_QUERY
 from eval.records import read_errors
-from syneepose.bop import Frame, SceneMeta, SceneWriter, read_frame, write_png
+from syneepose.bop import Frame, SceneMeta, SceneWriter, read_frame, read_scene, write_png
 from syneepose.errors import UserError
 from syneepose.transforms import make_T
 
@@ -97,7 +98,8 @@ def test_ground_truth_scores_100(dataset, tmp_path):
     assert sorted(summary["per_config"]) == ["panda+kinova_3f", "ur5e+robotiq_2f85"]
     assert summary["method"] == "bop-csv" and summary["options"]["name"] == "Oracle"
     assert summary["dataset"]["preset"] == "synthetic" and summary["ms_per_frame"] == pytest.approx(50.0)
-    assert summary["calibration"] == {"n_frames": 0, "trans_mm": None, "rot_deg": None}
+    assert summary["calibration"] == {"n_frames": 0, "trans_mm": None, "rot_deg": None, "points_mm": None,
+                                      "frame_15": None}
     assert {"numpy", "scipy", "cv2"} <= set(summary["versions"])
     points = summary["model_points"]["2"]
     n_vertices = len(trimesh.load(dataset / "models_eval" / "obj_000002.ply", process=False).vertices)
@@ -294,6 +296,13 @@ def test_methods_get_observations_in_order_without_ground_truth(dataset, tmp_pat
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert (summary["variant"], summary["backbone"], summary["n_failures"]) == ("B", "none", 8)
     assert summary["average"]["add@1cm"] == 0.0 and summary["calibration"]["n_frames"] == 8
+    # the calibration error at the workspace points, per frame, as eval.metrics computes it
+    rows = read_errors(tmp_path / "out" / "errors.csv")
+    for r in rows:
+        meta, _ = read_scene(data / "test" / f"{r.scene_id:06d}")
+        T_est = make_T(t=[0.0, 0.0, 0.5 + 1e-4 * r.im_id])
+        expected = calibration_error(T_est, meta.T_cam_base, WORKSPACE_POINTS).points_mm.mean()
+        assert r.calib_points_mm == pytest.approx(expected, rel=1e-3) and r.calib_points_mm > 0
 
 
 def test_registry_names_a_missing_or_broken_builtin_method(tmp_path, monkeypatch):

@@ -204,3 +204,13 @@ def test_robot_parts_fit_the_outline_of_their_union():
     frames = [(T_parts, view)]  # the camera is the base frame here
     assert mean_iou(model, np.eye(4), frames) > 0.99
     assert mean_iou(PartsSilhouette([ee]), np.eye(4), [(T_parts[:1], view)]) < 0.7
+
+
+def test_a_part_reaching_behind_the_camera_keeps_only_its_edges_in_front():
+    """An arm link can pass the camera plane: its edges behind it project nowhere and are left out (the
+    rest may still outline the robot) instead of being sampled along a projection that grows without bound."""
+    bar = SilhouetteModel(trimesh.creation.box((0.04, 0.04, 2.0)))
+    T = np.eye(4)
+    T[:3, 3] = [0.05, 0.0, 0.3]  # from 0.7 m behind the camera to 1.3 m in front
+    P = bar.contour(T, K, (120, 160))
+    assert 0 < len(P) < 2000 and (transform_points(T, P)[:, 2] > 0.05).all()
