@@ -62,7 +62,9 @@ def load_runs(folders: list[Path]) -> list[Run]:
         method = run.options.get("name") or s["method"].upper()
         if run.options.get("variant"):
             method += f" {run.options['variant']}" + (" + depth ICP (ours)" if run.options.get("icp") else "")
-            method += f" + {run.options['refine']} (ours)" if run.options.get("refine", "none") != "none" else ""
+            if run.options.get("refine", "none") != "none":
+                outline = " of the robot" if run.options.get("silhouette", "ee") != "ee" else ""
+                method += f" + {run.options['refine']}{outline} (ours)"
         for key, paper, title in (("k_r", 5, "K_r"), ("k_f", 8, "K_f")):
             if run.options.get(key) not in (None, paper):
                 method += f" {title}={run.options[key]}"

@@ -130,3 +130,29 @@ def test_convergence_by_frame_index():
     add_auc, calib = convergence(rows, bins)
     assert np.allclose(add_auc, [20.0, 60.0, 80.0, 90.0], atol=0.1)  # 1 - error / 1 cm in %, on a 0.01 mm grid
     assert np.allclose(calib, [40.0, 20.0, 10.0, 5.0])
+
+
+@register("test-refined")
+class Refined(Tuned):
+    """A FEEPE-like run that records a refinement and its outline."""
+
+    def __init__(self, results: str, name: str, silhouette: str = "ee"):
+        super().__init__(results, name)
+        self.silhouette = silhouette
+
+    def options(self) -> dict:
+        return {**super().options(), "refine": "silhouette+depth", "silhouette": self.silhouette}
+
+
+def test_refined_runs_are_labelled_with_their_outline(assets, tmp_path):
+    dataset = make_dataset(tmp_path / "data", assets)
+    exact = gt_csv(tmp_path / "gt.csv", dataset)
+    folders = []
+    for outline in ("ee", "robot"):
+        folders.append(tmp_path / outline)
+        assert run.main(["--method", "test-refined", "--out", str(folders[-1]), "--results", str(exact), "--name",
+                         "Refined", "--silhouette", outline, "--dataset", str(dataset)]) == 0
+    assert tables.main([str(d) for d in folders] + ["--out", str(tmp_path / "tables")]) == 0
+    names = [row[0] for row in _rows(tmp_path / "tables" / "table1.csv")]
+    assert "Refined D + silhouette+depth (ours) (sift-normals, synthetic)" in names
+    assert "Refined D + silhouette+depth of the robot (ours) (sift-normals, synthetic)" in names
