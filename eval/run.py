@@ -103,7 +103,7 @@ def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list
     return found
 
 
-def _observation(scene: Scene, im_id: int, depth_dir: str, cameras: dict, noise: MaskNoise | None):
+def observation(scene: Scene, im_id: int, depth_dir: str, cameras: dict, noise: MaskNoise | None):
     """The observation a method sees and the ground truth T_cam_ee it is scored against."""
     frame = read_frame(scene.path, im_id)
     robot = None if frame.link_ids is None else frame.link_ids > 0
@@ -172,7 +172,7 @@ def run_scene(method, scene: Scene, depth_dir: str, model: EvalModel, bar,
     cameras = json.loads((scene.path / "scene_camera.json").read_text())
     T_gt, estimates, wall_s = [], [], []
     for im_id in scene.im_ids:
-        obs, T_cam_ee = _observation(scene, im_id, depth_dir, cameras, noise)
+        obs, T_cam_ee = observation(scene, im_id, depth_dir, cameras, noise)
         start = time.perf_counter()
         estimates.append(method.estimate(obs))
         wall_s.append(time.perf_counter() - start)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import io
 import json
 import sys
@@ -21,16 +22,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from syneepose.cli import run_command
 from eval.handeye import BoardDetector, calibrate
-from syneepose.templates import find_template_set
+from eval.mask_noise import MaskNoise, mask_noise
 from eval.metrics import WORKSPACE_POINTS, calibration_error
+from eval.run import Scene, _dataset_info, build_method, observation
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
-from feepe.backbones import get_backbone
-from feepe.estimator import Estimator, FeepeOptions
-from feepe.icp import SurfaceModel
-from feepe.onboarding import onboard
 from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir, write_atomic
+from syneepose.cli import run_command
 from syneepose.errors import UserError
 from syneepose.scene.marker import MarkerBoard
 
@@ -47,7 +45,7 @@ class Trial:
     draw: int
     points_mm: float  # mean over the workspace points; inf when the method gave no calibration
     rot_deg: float
-    detected: int  # frames the method could use (board found / FEEPE candidates)
+    detected: int  # frames the method could use (board found / FEEPE gave a pose)
 
 
 def _pairs(marker_root: Path, plain_root: Path) -> list[tuple[Path, Path]]:
@@ -74,26 +72,44 @@ def _error(T_est: np.ndarray | None, T_gt: np.ndarray) -> tuple[float, float]:
     return float(err.points_mm.mean()), float(err.rot_deg[0])
 
 
+def _depth_label(root: Path, depth_dir: str) -> str:
+    kind = _dataset_info(root).get("depth_dirs", {}).get(depth_dir, "exact")
+    return f"{kind} depth" if kind != "exact" else ""
+
+
+def feepe_label(options: dict, plain_root: Path, depth_dir: str, noise: MaskNoise | None) -> str:
+    """FEEPE's row name from its options and what it saw, as eval.tables names runs."""
+    name = f"FEEPE {options['variant']}" + (" + depth ICP (ours)" if options.get("icp") else "")
+    if options.get("refine", "none") != "none":
+        outline = " of the robot" if options.get("silhouette", "ee") != "ee" else ""
+        name += f" + {options['refine']}{outline} (ours)"
+    seen = [v for v in (_depth_label(plain_root, depth_dir), "perturbed masks" if noise else "") if v]
+    return name + (f" ({', '.join(seen)})" if seen else "")
+
+
 def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: int = 0, hand_eye: str = "tsai",
-        variant: str = "D", icp: bool = False, backbone: str = DEFAULT_BACKBONE,
-        templates_dir: Path | None = None) -> list[Trial]:
+        feepe: dict | None = None, depth_dir: str = "depth", noise: MaskNoise | None = None) -> list[Trial]:
+    """`feepe`: the FEEPE method's options as `eval.run --method feepe` takes them (variant, icp, refine, ...)."""
     pairs = _pairs(Path(marker_root), Path(plain_root))
-    net = get_backbone(backbone)
-    feepe_name = f"FEEPE {variant}" + (" + depth ICP" if icp else "")
+    method = build_method("feepe", feepe or {})
+    feepe_name = feepe_label(method.options(), Path(plain_root), depth_dir, noise)
+    preset = Path(_dataset_info(Path(marker_root)).get("preset") or "targeting").stem
+    marker_name = "marker hand-eye" + (f" ({preset})" if preset != "targeting" else "")  # the old rows' name
     trials, rng = [], np.random.default_rng(seed)
     bar = tqdm(total=len(pairs) * len(views) * draws, unit="trial", desc="targeting")
     for marker_dir, plain_dir in pairs:
         meta, ids = read_scene(marker_dir)
+        plain_meta, _ = read_scene(plain_dir)
         config, scene_id = f"{meta.arm}+{meta.end_effector}", int(marker_dir.name)
         detector = BoardDetector(MarkerBoard.from_json(meta.marker))
         boards = {}
         for i in ids:
             f = read_frame(marker_dir, i)
             boards[i] = (f.T_base_ee, detector.T_cam_board(f.rgb, f.K)[0])
-        plain = {i: read_frame(plain_dir, i) for i in ids}
-        root = Path(templates_dir) if templates_dir else plain_root / "templates"
-        bank = onboard(find_template_set(root, meta.end_effector, None), net)
-        model = SurfaceModel.from_ply(plain_root / "models" / f"obj_{meta.obj_id:06d}.ply") if icp else None
+        scene = Scene(scene_id, plain_dir, plain_meta, ids)
+        cameras = json.loads((plain_dir / "scene_camera.json").read_text())
+        plain = {i: observation(scene, i, depth_dir, cameras, noise)[0] for i in ids}
+        hidden = dataclasses.replace(plain_meta, T_cam_base=np.full((4, 4), np.nan))
         for n in views:
             if n > len(ids):
                 raise UserError(f"{marker_dir}: {len(ids)} frames, fewer than --views {n}")
@@ -101,14 +117,13 @@ def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: 
                 chosen = sorted(rng.choice(ids, n, replace=False).tolist())
                 seen = [boards[i] for i in chosen if boards[i][1] is not None]
                 T_marker = calibrate([b[0] for b in seen], [b[1] for b in seen], hand_eye) if len(seen) >= 3 else None
-                trials.append(Trial("marker hand-eye", scene_id, config, n, draw, *_error(T_marker, meta.T_cam_base),
+                trials.append(Trial(marker_name, scene_id, config, n, draw, *_error(T_marker, meta.T_cam_base),
                                     len(seen)))
-                est = Estimator(bank, net, FeepeOptions(variant=variant, icp=icp), model)
-                results = [est.step(plain[i].rgb, plain[i].depth, plain[i].mask_visib, plain[i].K,
-                                    plain[i].T_base_ee) for i in chosen]
+                method.start_scene(hidden, plain_dir)
+                results = [method.estimate(plain[i]) for i in chosen]
                 trials.append(Trial(feepe_name, scene_id, config, n, draw,
                                     *_error(results[-1].T_cam_base, meta.T_cam_base),
-                                    sum(r.n_candidates > 0 for r in results)))
+                                    sum(r.T_cam_ee is not None for r in results)))
                 bar.update()
     bar.close()
     return trials
@@ -151,8 +166,12 @@ def main(argv=None) -> int:
     parser.add_argument("--hand-eye", default="tsai", help="tsai, park, horaud, andreff or daniilidis")
     parser.add_argument("--variant", default="D", choices=["A", "B", "C", "D"])
     parser.add_argument("--icp", action="store_true", help="FEEPE with depth alignment (our extension)")
+    parser.add_argument("--refine", default="none", help="FEEPE's refinement: none, silhouette or silhouette+depth")
+    parser.add_argument("--silhouette", default="ee", help="the refinement's outline: ee or robot")
     parser.add_argument("--backbone", default=DEFAULT_BACKBONE)
     parser.add_argument("--templates-dir", type=Path, help="FEEPE templates (default: PLAIN/templates)")
+    parser.add_argument("--depth-dir", default="depth", help="FEEPE's depth folder in PLAIN (e.g. depth_gt)")
+    parser.add_argument("--mask-noise", default="none", help="none or sam: FEEPE's masks perturbed as eval.run's")
     args = parser.parse_args(argv)
 
     def action() -> str:
@@ -160,8 +179,12 @@ def main(argv=None) -> int:
             views = tuple(int(v) for v in args.views.split(","))
         except ValueError:
             raise UserError(f"--views {args.views!r} must be comma-separated integers") from None
-        trials = run(args.marker, args.plain, views, args.draws, args.seed, args.hand_eye, args.variant, args.icp,
-                     args.backbone, args.templates_dir)
+        feepe = {"variant": args.variant, "icp": args.icp, "refine": args.refine, "silhouette": args.silhouette,
+                 "backbone": args.backbone}
+        if args.templates_dir is not None:
+            feepe["templates_dir"] = str(args.templates_dir)
+        trials = run(args.marker, args.plain, views, args.draws, args.seed, args.hand_eye, feepe, args.depth_dir,
+                     mask_noise(args.mask_noise))
         options = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
         summary = write(args.out, trials, options)
         lines = [f"{m} {v} views: {s['points_mm_median']:.2f} mm, {s['rot_deg_median']:.3f} deg"

@@ -28,7 +28,7 @@ SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 SPLIT = "test"
 NAME = "syneepose"  # the BOP data set name of result files: METHOD_syneepose-test.csv
 PRESET_KEYS = {"name", "segments", "frames", "resolution", "samples", "render", "camera", "motion", "lights",
-               "world", "backdrop", "distractors", "templates", "marker"}
+               "world", "backdrop", "distractors", "templates", "marker", "stations"}
 
 
 def load_preset(name_or_path: str) -> dict:
@@ -115,7 +115,9 @@ def run_job(job: Job) -> int:
     spec = plan_segment(preset, robot, MotionChecks(robot, mesh), job.scene_id, job.seed, job.frames,
                         job.width, job.height, job.samples, list(job.backgrounds))
     spec.device = job.device
-    if job.marker:
+    if not job.marker:
+        spec.marker = None  # a stations plan mounts its board whether it is drawn or not: the plain twin
+    elif spec.marker is None:
         spec.marker = _mounted_board(preset, robot, mesh, spec)
     if job.depth != "exact":
         from syneepose.stereo import load_profile
@@ -126,15 +128,10 @@ def run_job(job: Job) -> int:
 
 
 def _mounted_board(preset: dict, robot, mesh, spec):
-    """The preset's board (`marker:` section, defaults otherwise) turned to face this segment's camera."""
-    from syneepose.scene.marker import MarkerBoard, mount_facing_camera
+    """The preset's board turned to face this segment's camera."""
+    from syneepose.scene.marker import board_from_preset, mount_facing_camera
 
-    params = dict(preset.get("marker") or {})
-    mount = {k: params.pop(k) for k in ("clearance", "height") if k in params}
-    try:
-        board = MarkerBoard(**params)
-    except TypeError as exc:
-        raise UserError(f"preset {preset.get('name')}: marker section: {exc}") from None
+    board, mount = board_from_preset(preset)
     radius = float(np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 1]).max())
     T_cam_ee = inv_T(spec.T_base_cam) @ robot.T_base_ee(spec.q)
     return mount_facing_camera(board, T_cam_ee, radius, **mount)

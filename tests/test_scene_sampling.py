@@ -8,6 +8,7 @@ from syneepose.jobs import load_preset, make_jobs, parse_shard
 from syneepose.scene.motion import min_jerk, trajectory
 from syneepose.scene.sample import kelvin_to_rgb, look_at, rng_for
 from syneepose.templates import fibonacci_sphere, poses
+from syneepose.transforms import inv_T, transform_points
 
 
 def test_look_at_points_the_optical_axis():
@@ -101,3 +102,38 @@ def test_planned_segment_meets_every_rule(ur5e_checks):
     assert (inside >= 0.999).all() and (visible >= preset["camera"]["min_visible"]).all()
     lo, hi = np.array(robot.arm.limits).T
     assert ((spec.q >= lo) & (spec.q <= hi)).all()
+
+
+def test_stations_show_the_whole_board_face_on_and_spread_apart(ur5e_checks):
+    """The fair marker peer's stations: every rule holds in every frame, and the same seed plans the same."""
+    from syneepose.scene.plan import plan_segment
+    from syneepose.scene.stations import facing
+    from syneepose.transforms import rotation_angle
+
+    robot, checks = ur5e_checks
+    preset = load_preset("targeting-stations")
+    spec = plan_segment(preset, robot, checks, 0, 3, 8, 640, 480, 2)
+    again = plan_segment(preset, robot, checks, 0, 3, 8, 640, 480, 2)
+    np.testing.assert_array_equal(spec.q, again.q)
+    np.testing.assert_array_equal(spec.marker.T_ee_board, again.marker.T_ee_board)
+    T_cam_board = inv_T(spec.T_base_cam) @ robot.T_base_ee(spec.q) @ spec.marker.T_ee_board
+    tilt = np.rad2deg(np.arccos(facing(T_cam_board, spec.marker)))
+    assert (tilt <= preset["stations"]["max_tilt_deg"] + 1e-6).all()
+    corners = transform_points(spec.marker.T_ee_board, spec.marker.corners())
+    inside, seen = checks.seen(spec.q, spec.T_base_cam, spec.K, 640, 480, corners, ee_occludes=True)
+    assert (inside == 1).all() and (seen == 1).all()
+    inside, visible = checks.check(spec.q, spec.T_base_cam, spec.K, 640, 480)
+    assert (inside >= 0.999).all() and (visible >= preset["camera"]["min_visible"]).all()
+    assert not checks.self_collision(spec.q).any() and checks.above_floor(spec.q, 0.1).all()
+    R = robot.T_base_ee(spec.q)[:, :3, :3]
+    closest = min(rotation_angle(R[i], R[j]) for i in range(len(R)) for j in range(i))
+    assert np.rad2deg(closest) > 5  # stations, not a slow motion: hand-eye needs distinct rotations
+
+
+def test_stations_refuse_an_impossible_tilt(ur5e_checks):
+    from syneepose.scene.stations import StationRules
+
+    with pytest.raises(UserError, match="stations: max_tilt_deg"):
+        StationRules.from_preset({"name": "x", "stations": {"max_tilt_deg": 95}})
+    with pytest.raises(UserError, match="unknown keys"):
+        StationRules.from_preset({"name": "x", "stations": {"tilt": 10}})

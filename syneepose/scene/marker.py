@@ -39,6 +39,12 @@ class MarkerBoard:
     def size(self) -> tuple[float, float]:
         return self.squares[0] * self.square, self.squares[1] * self.square
 
+    def corners(self) -> np.ndarray:
+        """Every square corner of the pattern in the board frame, (n, 3) metres: what must be seen."""
+        x = np.arange(self.squares[0] + 1) * self.square
+        y = np.arange(self.squares[1] + 1) * self.square
+        return np.stack(np.meshgrid(x, y, [0.0]), -1).reshape(-1, 3)
+
     def cv_board(self):
         vocabulary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         return cv2.aruco.CharucoBoard(self.squares, self.square, self.marker, vocabulary)
@@ -58,6 +64,17 @@ class MarkerBoard:
     def from_json(cls, d: dict) -> "MarkerBoard":
         return cls(d["dictionary"], d["squares"], d["square"], d["marker"], d["margin"],
                    np.array(d["T_ee_board"], dtype=float))
+
+
+def board_from_preset(preset: dict) -> tuple[MarkerBoard, dict]:
+    """The preset's `marker:` section (defaults otherwise): the board, and how it is mounted (clearance,
+    height) as keyword arguments of `board_pose`."""
+    params = dict(preset.get("marker") or {})
+    mount = {k: float(params.pop(k)) for k in ("clearance", "height") if k in params}
+    try:
+        return MarkerBoard(**params), mount
+    except TypeError as exc:
+        raise UserError(f"preset {preset.get('name')}: marker section: {exc}") from None
 
 
 def board_pose(board: MarkerBoard, yaw: float, radius: float, clearance: float, height: float) -> np.ndarray:

@@ -90,11 +90,18 @@ class MotionChecks:
     def check(self, q: np.ndarray, T_base_cam: np.ndarray, K: np.ndarray, width: int, height: int,
               margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Per frame: (fraction of points inside the image, fraction inside and unoccluded)."""
+        return self.seen(q, T_base_cam, K, width, height, self.points, margin)
+
+    def seen(self, q: np.ndarray, T_base_cam: np.ndarray, K: np.ndarray, width: int, height: int,
+             points_ee: np.ndarray, margin: float = 0.0, ee_occludes: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Per frame: the fraction of `points_ee` (fixed to the end-effector) inside the image, and inside and
+        unoccluded by the arm's hulls (and the end-effector's, for points beside it such as a marker board)."""
         poses = self.robot.T_base_link(q)
         T_cam_base = inv_T(T_base_cam)
+        hulls = dict(self.hulls, **({self.robot.ee_root: self.hull_ee} if ee_occludes else {}))
         inside, visible = np.zeros(len(q)), np.zeros(len(q))
         for i in range(len(q)):
-            p_cam = transform_points(T_cam_base @ poses[self.robot.ee_root][i], self.points)
+            p_cam = transform_points(T_cam_base @ poses[self.robot.ee_root][i], points_ee)
             z = p_cam[:, 2]
             uv = p_cam[:, :2] / np.maximum(z, 1e-9)[:, None] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
             ok = (z > 0.05) & (uv[:, 0] >= margin * width) & (uv[:, 0] <= (1 - margin) * width - 1) \
@@ -103,7 +110,7 @@ class MotionChecks:
             if not ok.any():
                 continue
             occluders = trimesh.util.concatenate([h.copy().apply_transform(T_cam_base @ poses[name][i])
-                                                  for name, h in self.hulls.items()])
+                                                  for name, h in hulls.items()])
             targets = p_cam[ok]
             dist = np.linalg.norm(targets, axis=1)
             dirs = targets / dist[:, None]
@@ -111,7 +118,7 @@ class MotionChecks:
             blocked = np.zeros(len(dirs), bool)
             hit = np.linalg.norm(locs, axis=1) < dist[ray_idx] - 0.005
             blocked[ray_idx[hit]] = True
-            visible[i] = (~blocked).sum() / len(self.points)
+            visible[i] = (~blocked).sum() / len(points_ee)
         return inside, visible
 
     def above_floor(self, q: np.ndarray, clearance: float) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""One segment's full description: a trajectory and a camera that sees the end-effector throughout."""
+"""One segment's full description: a trajectory and a camera that sees the end-effector throughout (or,
+with the preset's `stations:` section, calibration stations where a marker board is seen: stations.py)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,10 @@ MAX_TRAJECTORIES, MAX_CAMERAS = 30, 10
 
 def plan_segment(preset: dict, robot, checks: MotionChecks, scene_id: int, seed: int, n_frames: int,
                  width: int, height: int, samples: int, images: list[str] | None = None) -> SegmentSpec:
+    if "stations" in preset:
+        from syneepose.scene.stations import plan_stations
+
+        return plan_stations(preset, robot, checks, scene_id, seed, n_frames, width, height, samples, images)
     rng = rng_for(seed, robot.config, scene_id)
     motion = preset["motion"]
     min_visible = float(preset["camera"].get("min_visible", 0.5))

@@ -1,0 +1,109 @@
+"""Calibration stations as a careful marker hand-eye user picks them (the preset's `stations:` section).
+
+A practitioner bolts the board to the flange facing the camera and drives the arm to poses where the board
+is seen whole, face-on within a tilt limit and unoccluded, spread in orientation because hand-eye solvers
+(Tsai-Lenz and its successors) need rotations about several axes. Here: one camera, a pool of arm poses
+drawn around home, the board's turn about the tool axis that faces the camera in most of them, then the
+poses that pass every rule, chosen greedily farthest apart in end-effector orientation. Frames are
+stations, not a smooth motion. Nothing depends on whether the board is drawn, so the same command
+without `--marker` renders the marker-free twin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from syneepose.errors import UserError
+from syneepose.scene.marker import MarkerBoard, board_from_preset, board_pose
+from syneepose.scene.motion import MotionChecks
+from syneepose.scene.sample import rng_for, sample_segment
+from syneepose.scene.spec import SegmentSpec
+from syneepose.transforms import inv_T, rotation_angle
+
+MAX_CAMERAS, YAW_STEPS = 20, 72
+
+
+@dataclass(frozen=True)
+class StationRules:
+    max_tilt_deg: float = 40.0  # between the board's normal and the direction to the camera
+    pool: int = 300  # arm poses drawn per camera
+
+    @classmethod
+    def from_preset(cls, preset: dict) -> "StationRules":
+        section = preset.get("stations") or {}
+        unknown = set(section) - {"max_tilt_deg", "pool"}
+        if unknown:
+            raise UserError(f"preset {preset.get('name')}: stations: unknown keys {sorted(unknown)}; "
+                            "allowed: max_tilt_deg, pool")
+        rules = cls(float(section.get("max_tilt_deg", cls.max_tilt_deg)), int(section.get("pool", cls.pool)))
+        if not 0 < rules.max_tilt_deg < 90 or rules.pool < 1:
+            raise UserError(f"preset {preset.get('name')}: stations: max_tilt_deg must lie in (0, 90) and pool "
+                            f"be positive, got {rules.max_tilt_deg} and {rules.pool}")
+        return rules
+
+
+def facing(T_cam_board: np.ndarray, board: MarkerBoard) -> np.ndarray:
+    """Cosine between each board's face normal and the direction from its centre to the camera."""
+    w, h = board.size
+    centre = T_cam_board[:, :3, :3] @ np.array([w / 2, h / 2, 0.0]) + T_cam_board[:, :3, 3]
+    face = -T_cam_board[:, :3, 2]
+    return np.sum(face * -centre, 1) / np.linalg.norm(centre, axis=1)
+
+
+def spread_apart(R: np.ndarray, n: int, first: int) -> list[int]:
+    """Greedy farthest-point choice of n rotations (geodesic angle), starting from index `first`."""
+    chosen = [first]
+    nearest = np.array([rotation_angle(R[first], r) for r in R])
+    while len(chosen) < n:
+        k = int(np.argmax(nearest))
+        chosen.append(k)
+        nearest = np.minimum(nearest, [rotation_angle(R[k], r) for r in R])
+    return chosen
+
+
+def plan_stations(preset: dict, robot, checks: MotionChecks, scene_id: int, seed: int, n_frames: int,
+                  width: int, height: int, samples: int, images: list[str] | None = None) -> SegmentSpec:
+    rules = StationRules.from_preset(preset)
+    board, mount = board_from_preset(preset)
+    rng = rng_for(seed, robot.config, scene_id)
+    motion = preset["motion"]
+    lo, hi = np.asarray(robot.arm.limits, float).T
+    home = np.asarray(robot.arm.home, float)
+    min_visible = float(preset["camera"].get("min_visible", 0.5))
+    margin = float(preset["camera"].get("margin", 0.02))
+    radius = float(np.hypot(checks.hull_ee.vertices[:, 0], checks.hull_ee.vertices[:, 1]).max())
+    cos_tilt = np.cos(np.deg2rad(rules.max_tilt_deg))
+    for _ in range(MAX_CAMERAS):
+        pool = np.clip(home + rng.uniform(-1, 1, (rules.pool, len(home))) * float(motion["spread"]), lo, hi)
+        pool = pool[checks.above_floor(pool, float(motion.get("clearance", 0.1)))]
+        pool = pool[~checks.self_collision(pool)]
+        if len(pool) < n_frames:
+            continue
+        spec = sample_segment(rng, preset, robot, robot.config, scene_id, seed, pool, width, height, samples,
+                              images)
+        T_cam_ee = inv_T(spec.T_base_cam) @ robot.T_base_ee(pool)
+        mounts = [board_pose(board, yaw, radius, **mount) for yaw in np.linspace(0, 2 * np.pi, YAW_STEPS, False)]
+        counts = [np.sum(facing(T_cam_ee @ T, board) >= cos_tilt) for T in mounts]
+        T_ee_board = mounts[int(np.argmax(counts))]
+        keep = np.flatnonzero(facing(T_cam_ee @ T_ee_board, board) >= cos_tilt)
+        if len(keep) < n_frames:
+            continue
+        corners = board.corners() @ T_ee_board[:3, :3].T + T_ee_board[:3, 3]
+        inside, seen = checks.seen(pool[keep], spec.T_base_cam, spec.K, width, height, corners, margin,
+                                   ee_occludes=True)
+        keep = keep[(inside >= 1.0) & (seen >= 1.0)]
+        inside, visible = checks.check(pool[keep], spec.T_base_cam, spec.K, width, height, margin)
+        keep = keep[(inside >= 0.999) & (visible >= min_visible)]
+        if len(keep) < n_frames:
+            continue
+        R = robot.T_base_ee(pool[keep])[:, :3, :3]
+        chosen = keep[spread_apart(R, n_frames, int(rng.integers(len(keep))))]
+        spec.q = pool[chosen]
+        spec.marker = MarkerBoard(board.dictionary, board.squares, board.square, board.marker, board.margin,
+                                  T_ee_board)
+        return spec
+    raise UserError(f"{robot.config}: fewer than {n_frames} stations showed the whole board within "
+                    f"{rules.max_tilt_deg} deg of face-on for each of {MAX_CAMERAS} cameras; raise "
+                    "stations.max_tilt_deg or stations.pool, or move the camera closer (camera.distance)")
