@@ -18,7 +18,7 @@ from feepe.estimator import REFINEMENTS, Estimator, FeepeOptions, load_models
 from feepe.onboarding import onboard
 from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir
 
-STAGES = ("backbone", "retrieval", "matching", "pnp", "optimisation", "refinement", "total")
+STAGES = ("backbone", "retrieval", "matching", "pnp", "optimisation", "refinement", "robot_starts", "total")
 
 
 def main() -> None:

@@ -43,6 +43,7 @@ class FrameCandidates:
     cloud: np.ndarray | None = None  # (N, 3) masked depth points, camera frame (depth alignment only)
     silhouette: MaskView | None = None  # the frame's mask as a distance field (silhouette refinement only)
     parts: np.ndarray | None = None  # (n, 4, 4) T_base of the parts that mask shows: the end-effector (, the arm links)
+    robot_starts: list = field(default_factory=list)  # T_cam_base starts from the robot's depth (first frames)
 
 
 @dataclass

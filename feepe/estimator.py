@@ -23,6 +23,7 @@ from feepe.icp import PlaneTerm, SurfaceModel, associate, observed_cloud, sensor
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
+from feepe.robot_starts import model_points, observed_points, robot_starts
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, contour_fit, contour_term, mask_view, mean_iou
 from feepe.symmetry import consensus
 from syneepose.errors import UserError
@@ -57,6 +58,7 @@ class FeepeOptions:
     silhouette_switch_iou: float = 0.05  # another start must beat the last calibration's IoU by this to be tried
     silhouette_min_sigma_px: float = 0.25  # with depth, the finest stage's scale: the masks' measured spread, at least this
     silhouette_depth_tolerance: float = 2.0  # standard errors depth may worsen the mean contour distance by
+    robot_start_frames: int = 3  # silhouette="robot": first frames that also start from the robot's depth
     depth_sigma_m: float = 0.002  # noise shape sigma_m + sigma_z2 * z^2 (m), scaled by the measured spread;
     depth_sigma_z2: float = 0.0036  # z^2 factor: Intel's D435 RMS model, subpixel 0.08 / (f 447 px x 0.05 m)
     single: SingleFrameOptions = field(default_factory=SingleFrameOptions)
@@ -125,6 +127,8 @@ def describe(opts: FeepeOptions, backbone) -> dict:
     out = asdict(opts)
     if opts.refine == "none":
         out = {k: v for k, v in out.items() if k not in SILHOUETTE_OPTIONS}
+    if opts.silhouette != "robot":  # runs of the end-effector outline keep their identity
+        out.pop("robot_start_frames")
     return {**out, "backbone": backbone.options()}
 
 
@@ -157,6 +161,7 @@ class Estimator:
         """Start a new sequence (a new camera placement): the memory and the last calibration go. `arm`:
         the arm links' meshes (link frames) that `silhouette="robot"` fits beside the end-effector."""
         self.parts = PartsSilhouette([self.silhouette, *(arm or [])]) if self.silhouette is not None else None
+        self._robot_points = model_points([p.mesh for p in self.parts.parts]) if arm else None
         self.pool = MemoryPool(self.opts.memory_threshold_deg)
         self.T_cam_base: np.ndarray | None = None
         self.frame = 0
@@ -179,6 +184,10 @@ class Estimator:
                 robot = _check_robot(robot, mask.shape, len(self.parts.parts) - 1)
                 found.silhouette = mask_view(robot.mask, K, depth)
                 found.parts = np.concatenate([np.asarray(T_base_ee, float)[None], robot.T_base_links])
+                if self.frame < self.opts.robot_start_frames:
+                    t0 = time.perf_counter()
+                    found.robot_starts = self._robot_starts(found.parts, robot.mask, depth, mask, K)
+                    found.timings["robot_starts"] = 1e3 * (time.perf_counter() - t0)
             else:
                 found.silhouette = mask_view(mask, K, depth)
                 found.parts = np.asarray(T_base_ee, float)[None]
@@ -224,7 +233,7 @@ class Estimator:
         if opts.refine != "none":
             t0 = time.perf_counter()
             clouds = [(T_b, f.cloud) for T_b, f in views] if opts.depth_in_refinement else []
-            starts = self._starts(T, T_base_ee, cands)
+            starts = self._starts(T, T_base_ee, found)
             T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in views], clouds)
             timings["refinement"] = 1e3 * (time.perf_counter() - t0)
         score = float(np.sum(reprojection_px(T, stack(frames[:1])) <= opts.single.pnp_threshold_px))
@@ -242,12 +251,24 @@ class Estimator:
                 break
         return T
 
-    def _starts(self, T: np.ndarray, T_base_ee: np.ndarray, cands: list) -> list[np.ndarray]:
+    def _starts(self, T: np.ndarray, T_base_ee: np.ndarray, found: FrameCandidates) -> list[np.ndarray]:
         """The optimised calibration, the current frame's best candidates' (most inliers first, symmetry
-        disambiguation notwithstanding: the masks judge them) and those the end-effector's positions so far
-        imply (feepe/centres.py)."""
-        best = sorted(cands, key=lambda c: -c.n_inliers)[:self.opts.silhouette_starts]
-        return [T] + [c.T_cam_ee @ inv_T(T_base_ee) for c in best] + self.centres.starts()
+        disambiguation notwithstanding: the masks judge them), those the end-effector's positions so far
+        imply (feepe/centres.py) and, in a segment's first frames, those of the robot's depth
+        (feepe/robot_starts.py)."""
+        best = sorted(found.candidates, key=lambda c: -c.n_inliers)[:self.opts.silhouette_starts]
+        return ([T] + [c.T_cam_ee @ inv_T(T_base_ee) for c in best] + self.centres.starts()
+                + found.robot_starts)
+
+    def _robot_starts(self, T_base_parts: np.ndarray, robot_mask: np.ndarray, depth: np.ndarray,
+                      mask: np.ndarray, K: np.ndarray) -> list[np.ndarray]:
+        pivot_cam = observed_centre(depth, mask, K)
+        if pivot_cam is None:
+            return []
+        model_base = np.concatenate([P @ T[:3, :3].T + T[:3, 3] for P, T in zip(self._robot_points, T_base_parts)])
+        centre = self.silhouette.mesh.bounds.mean(0)
+        pivot_base = T_base_parts[0, :3, :3] @ centre + T_base_parts[0, :3, 3]
+        return robot_starts(model_base, observed_points(depth, robot_mask, K), pivot_base, pivot_cam)
 
     def _refine_silhouette(self, starts: list[np.ndarray], frames: list, clouds: list) -> np.ndarray:
         """Online: with no new key frame since the last refinement and a current mask that the last
