@@ -42,15 +42,22 @@ tables: dataset
 
 # The targeting experiment: the same segments rendered with and without a ChArUco board on the flange,
 # marker hand-eye against FEEPE (with the mini templates) at 3-20 views; table and plot in results/targeting.
+# targeting-stations: the fair marker peer (stations where the board is seen in every view).
 AIM_ROBOTS ?= panda+panda_hand,ur5e+robotiq_2f85,panda+robotiq_3f
 AIM := $(PY) -m eval.targeting --marker data/targeting-marker --plain data/targeting-plain --templates-dir $(DATA)/templates
+FAIR := $(PY) -m eval.targeting --marker data/stations-marker --plain data/stations-plain --templates-dir $(DATA)/templates
 
 targeting: dataset
 	$(PY) -m syneepose render --preset targeting --robots $(AIM_ROBOTS) --marker --out data/targeting-marker
 	$(PY) -m syneepose render --preset targeting --robots $(AIM_ROBOTS) --out data/targeting-plain
 	$(AIM) --out results/targeting/feepe-D
 	$(AIM) --icp --out results/targeting/feepe-D-icp
-	$(PY) -m eval.tables results/targeting/feepe-D results/targeting/feepe-D-icp --out results/targeting/tables
+	$(PY) -m syneepose render --preset targeting-stations --robots $(AIM_ROBOTS) --marker --out data/stations-marker
+	$(PY) -m syneepose render --preset targeting-stations --robots $(AIM_ROBOTS) --out data/stations-plain
+	$(FAIR) --out results/targeting/stations-feepe-D
+	$(FAIR) --refine silhouette --silhouette robot --mask-noise sam --out results/targeting/stations-robot-sil-sam
+	$(PY) -m eval.tables results/targeting/feepe-D results/targeting/feepe-D-icp results/targeting/stations-* \
+		--out results/targeting/tables
 
 # The report test opens a page in headless Chromium (CI runs as root on Debian).
 test: assets
@@ -62,6 +69,7 @@ bench: dataset
 	$(PY) benchmarks/render.py
 	$(PY) benchmarks/estimator.py --dataset $(DATA)
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette
+	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette --silhouette robot
 	$(PY) benchmarks/metrics.py
 
 clean-assets:
