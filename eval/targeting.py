@@ -6,6 +6,9 @@ bolted to the end-effector (`render --marker`) and without (`render`). For every
 calibrates from the board poses of those frames (`cv2.calibrateHandEye`, Tsai by default, as the
 paper's baseline) and FEEPE runs online over the same frames of the marker-free twin, in frame order;
 both camera-to-base poses are scored at 5 fixed workspace points (mean distance, mm) and in rotation.
+FEEPE is the registered `feepe` method with the options `eval.run` gives it (`--refine`, `--silhouette`,
+`--mask-noise`, `--depth-dir`). Render with `--preset targeting-stations` for the fair marker peer: stations
+where the board is seen in every view (syneepose/scene/stations.py); the marker rows then carry the preset.
 """
 
 from __future__ import annotations
