@@ -55,6 +55,7 @@ targeting: dataset
 	$(PY) -m syneepose render --preset targeting-stations --robots $(AIM_ROBOTS) --marker --out data/stations-marker
 	$(PY) -m syneepose render --preset targeting-stations --robots $(AIM_ROBOTS) --out data/stations-plain
 	$(FAIR) --out results/targeting/stations-feepe-D
+	$(FAIR) --refine silhouette --silhouette robot --out results/targeting/stations-robot-sil
 	$(FAIR) --refine silhouette --silhouette robot --mask-noise sam --out results/targeting/stations-robot-sil-sam
 	$(PY) -m eval.tables results/targeting/feepe-D results/targeting/feepe-D-icp results/targeting/stations-* \
 		--out results/targeting/tables
