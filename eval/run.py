@@ -37,7 +37,7 @@ from syneepose.bop import (SceneMeta, read_frame, read_gt_poses, read_png, read_
                           write_atomic)
 from syneepose.errors import UserError
 
-METHOD_OPTIONS = ("variant", "icp", "refine", "silhouette", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
+METHOD_OPTIONS = ("variant", "icp", "refine", "silhouette", "refit_growth", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
                   "templates_dir", "bow_assignment", "hand_eye", "results", "name")  # CLI options handed to the method's constructor
 NO_POSE = np.full((4, 4), np.nan)
 
@@ -356,6 +356,9 @@ def main(argv=None) -> int:
     parser.add_argument("--silhouette", choices=["ee", "robot"],
                         help="feepe option: the outline --refine fits: the end-effector's mask (default, the paper's "
                              "input) or the whole robot's (every arm link by FK; needs robot_mask_visib/ in the data set)")
+    parser.add_argument("--refit-growth", type=float,
+                        help="feepe option: a new key frame refits the calibration only once the memory grew by this "
+                             "fraction since the last refit (default 0: each new key frame; our extension)")
     parser.add_argument("--layer", type=int, help="feepe option: DINOv2 block, counted from 0 as FoundPose (paper: 19 of ViT-L's 0..23)")
     parser.add_argument("--n-templates", type=int, help="feepe option: template set by count (default: largest)")
     parser.add_argument("--k-r", type=int, help="feepe option: reference templates per frame (paper: 5)")

@@ -59,12 +59,15 @@ class FeepeOptions:
     silhouette_min_sigma_px: float = 0.25  # with depth, the finest stage's scale: the masks' measured spread, at least this
     silhouette_depth_tolerance: float = 2.0  # standard errors depth may worsen the mean contour distance by
     robot_start_frames: int = 3  # silhouette="robot": first frames that also start from the robot's depth
+    silhouette_refit_growth: float = 0.0  # new key frames refit once the memory grew by this fraction (0: each)
     depth_sigma_m: float = 0.002  # noise shape sigma_m + sigma_z2 * z^2 (m), scaled by the measured spread;
     depth_sigma_z2: float = 0.0036  # z^2 factor: Intel's D435 RMS model, subpixel 0.08 / (f 447 px x 0.05 m)
     single: SingleFrameOptions = field(default_factory=SingleFrameOptions)
     optimize: OptimizeOptions = field(default_factory=OptimizeOptions)
 
     def __post_init__(self):
+        if not self.silhouette_refit_growth >= 0:
+            raise UserError(f"refit growth {self.silhouette_refit_growth} must be >= 0 (0: refit on each new key frame)")
         if self.variant not in VARIANTS:
             raise UserError(f"FEEPE variant {self.variant!r} unknown; choose one of {', '.join(VARIANTS)}")
         if self.icp and self.variant == "A":
@@ -129,6 +132,8 @@ def describe(opts: FeepeOptions, backbone) -> dict:
         out = {k: v for k, v in out.items() if k not in SILHOUETTE_OPTIONS}
     if opts.silhouette != "robot":  # runs of the end-effector outline keep their identity
         out.pop("robot_start_frames")
+    if not opts.silhouette_refit_growth:  # as runs before the option existed
+        out.pop("silhouette_refit_growth")
     return {**out, "backbone": backbone.options()}
 
 
@@ -271,8 +276,9 @@ class Estimator:
         return robot_starts(model_base, observed_points(depth, robot_mask, K), pivot_base, pivot_cam)
 
     def _refine_silhouette(self, starts: list[np.ndarray], frames: list, clouds: list) -> np.ndarray:
-        """Online: with no new key frame since the last refinement and a current mask that the last
-        calibration explains as well as it explained the key frames, it stands. Else it is refined at the
+        """Online: with no new key frame since the last refinement (or fewer than `silhouette_refit_growth`
+        of the memory's size then) and a current mask that the last calibration explains as well as it
+        explained the key frames, it stands. Else it is refined at the
         finest scale and kept unless another start explains the current mask clearly better; then every start
         is scored on all key frames and the best ones are refined coarse to fine. The best mean mask IoU wins."""
         opts, sigmas, current = self.opts, self.opts.silhouette_sigmas_px, frames[:1]
@@ -282,9 +288,10 @@ class Estimator:
 
         warm = None
         if self.T_cam_base is not None:
-            if self._fitted is not None and self._fitted[0] == len(self.pool):
+            if self._fitted is not None and len(self.pool) < max(self._fitted[0] + 1,
+                                                                  self._fitted[0] * (1 + opts.silhouette_refit_growth)):
                 if fit(self.T_cam_base, current) >= self._fitted[1] - opts.silhouette_switch_iou:
-                    return self.T_cam_base  # no new key frame, and the current mask agrees as well as they did
+                    return self.T_cam_base  # the memory grew too little, and the current mask agrees as they did
             warm = self._descend(self.T_cam_base, frames, sigmas[-1:], clouds)
             if max(fit(T, current) for T in starts) <= fit(warm, current) + opts.silhouette_switch_iou:
                 self._fitted = (len(self.pool), fit(warm, frames))

@@ -131,6 +131,13 @@ def test_paper_variants_keep_their_identity_and_options_are_checked():
         FeepeOptions(refine="silhouette", silhouette="arm")
     with pytest.raises(UserError, match="needs refine silhouette"):
         FeepeOptions(silhouette="robot")
+    with pytest.raises(UserError, match="refit growth -0.5 must be >= 0"):
+        FeepeOptions(refine="silhouette", silhouette_refit_growth=-0.5)
+    # options added later leave the identity of the runs stored before them unchanged
+    ee = describe(FeepeOptions(refine="silhouette"), net)
+    assert "robot_start_frames" not in ee and "silhouette_refit_growth" not in ee
+    robot = describe(FeepeOptions(refine="silhouette", silhouette="robot", silhouette_refit_growth=0.25), net)
+    assert robot["robot_start_frames"] == 3 and robot["silhouette_refit_growth"] == 0.25
 
 
 @pytest.mark.parametrize("refine", ["silhouette", "silhouette+depth"])

@@ -32,11 +32,11 @@ class Feepe:
     def __init__(self, variant: str = "D", backbone: str = DEFAULT_BACKBONE, layer: int | None = None,
                  n_templates: int | None = None, k_r: int = 5, k_f: int = 8, backbone_weights: str | None = None,
                  templates_dir: str | None = None, icp: bool = False, bow_assignment: str = "foundpose",
-                 refine: str = "none", silhouette: str = "ee"):
+                 refine: str = "none", silhouette: str = "ee", refit_growth: float = 0.0):
         if bow_assignment not in ("foundpose", "gaussian"):
             raise UserError(f"--bow-assignment {bow_assignment!r}: foundpose (FoundPose's) or gaussian (ours)")
         self.opts = FeepeOptions(variant=variant, k_f=k_f, icp=icp, refine=refine, silhouette=silhouette,
-                                 single=SingleFrameOptions(k_r=k_r))
+                                 silhouette_refit_growth=refit_growth, single=SingleFrameOptions(k_r=k_r))
         self.bow_assignment = bow_assignment
         kwargs = {}
         if backbone.startswith("dinov2"):
@@ -55,6 +55,8 @@ class Feepe:
         refine = {"refine": self.opts.refine} if self.opts.refine != "none" else {}  # absent: old runs resume
         if self.opts.silhouette != "ee":
             refine["silhouette"] = self.opts.silhouette
+        if self.opts.silhouette_refit_growth:
+            refine["refit_growth"] = self.opts.silhouette_refit_growth
         return {"variant": self.opts.variant, "icp": self.opts.icp, **refine, "backbone": self.backbone.name,
                 "layer": self.backbone.options().get("layer"), "n_templates": self.n_templates,
                 "k_r": self.opts.single.k_r, "k_f": self.opts.k_f, "bow_assignment": self.bow_assignment,
