@@ -14,7 +14,8 @@ import numpy as np
 
 from syneepose.templates import find_template_set
 from feepe.backbones import DEFAULT, get_backbone
-from feepe.estimator import REFINEMENTS, Estimator, FeepeOptions, RobotView, load_models
+from eval.methods.feepe import arm_models, robot_view
+from feepe.estimator import REFINEMENTS, Estimator, FeepeOptions, load_models
 from feepe.onboarding import onboard
 from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir
 
@@ -45,33 +46,17 @@ def main() -> None:
                 print(f"onboarding {folder.name}: {banks[ee].seconds:.1f} s, {len(banks[ee].uv)} features")
             opts = FeepeOptions(variant="D", refine=args.refine, silhouette=args.silhouette)
             est = Estimator(banks[ee], net, opts, *load_models(root / "models" / f"obj_{meta.obj_id:06d}.ply", opts))
-            arm = _arm(meta) if args.silhouette == "robot" else None
+            arm = arm_models(meta) if args.silhouette == "robot" else None
             est.reset(arm=arm[2] if arm else None)
             for im_id in im_ids[: args.frames or None]:
                 f = read_frame(scene, im_id)
-                view = None
-                if arm:
-                    T_base_link = arm[0].T_base_link(f.joint_positions)
-                    view = RobotView(f.link_ids > 0, np.stack([T_base_link[name] for name in arm[1]]))
+                view = robot_view(arm, f.link_ids > 0, f.joint_positions) if arm else None
                 timings.append(est.step(f.rgb, f.depth, f.mask_visib, f.K, f.T_base_ee, view).timings)
     mean = {s: float(np.mean([t.get(s, 0.0) for t in timings])) for s in STAGES}
     non_backbone = mean["total"] - mean["backbone"]
     print(f"{args.backbone}, variant D, refine {args.refine} ({args.silhouette}), {len(timings)} frames of {root}: "
           + ", ".join(f"{s} {mean[s]:.1f}" for s in STAGES) + f" ms/frame; everything but the backbone "
           f"{non_backbone:.1f} ms/frame")
-
-
-def _arm(meta):
-    """The robot, its arm links with a mesh and their silhouette models, as the evaluator builds them."""
-    from eval.methods.feepe import link_mesh
-    from feepe.silhouette import SilhouetteModel
-    from syneepose.robots.robot import load_robot
-
-    if not meta.links:
-        raise SystemExit("--silhouette robot needs a data set rendered with robot_mask_visib/")
-    robot = load_robot(f"{meta.arm}+{meta.end_effector}")
-    links = meta.links[:-1]
-    return robot, links, [SilhouetteModel(link_mesh(robot, name)) for name in links]
 
 
 if __name__ == "__main__":

@@ -50,6 +50,16 @@ class Table:
     notes: list[str] = field(default_factory=list)
 
 
+def method_label(name: str, options: dict) -> str:
+    """A method's name with its variant and our extensions, e.g. "FEEPE D + silhouette of the robot (ours)"."""
+    if options.get("variant"):
+        name += f" {options['variant']}" + (" + depth ICP (ours)" if options.get("icp") else "")
+        if options.get("refine", "none") != "none":
+            outline = " of the robot" if options.get("silhouette", "ee") != "ee" else ""
+            name += f" + {options['refine']}{outline} (ours)"
+    return name
+
+
 def load_runs(folders: list[Path]) -> list[Run]:
     runs = []
     for folder in folders:
@@ -59,12 +69,7 @@ def load_runs(folders: list[Path]) -> list[Run]:
         runs.append(Run(Path(folder), json.loads(path.read_text())))
     for run in runs:
         s = run.summary
-        method = run.options.get("name") or s["method"].upper()
-        if run.options.get("variant"):
-            method += f" {run.options['variant']}" + (" + depth ICP (ours)" if run.options.get("icp") else "")
-            if run.options.get("refine", "none") != "none":
-                outline = " of the robot" if run.options.get("silhouette", "ee") != "ee" else ""
-                method += f" + {run.options['refine']}{outline} (ours)"
+        method = method_label(run.options.get("name") or s["method"].upper(), run.options)
         for key, paper, title in (("k_r", 5, "K_r"), ("k_f", 8, "K_f")):
             if run.options.get(key) not in (None, paper):
                 method += f" {title}={run.options[key]}"

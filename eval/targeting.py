@@ -28,7 +28,8 @@ from tqdm import tqdm
 from eval.handeye import BoardDetector, calibrate
 from eval.mask_noise import MaskNoise, mask_noise
 from eval.metrics import WORKSPACE_POINTS, calibration_error
-from eval.run import Scene, _dataset_info, build_method, observation
+from eval.run import NO_POSE, Scene, _dataset_info, build_method, observation
+from eval.tables import method_label
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir, write_atomic
 from syneepose.cli import run_command
@@ -82,10 +83,7 @@ def _depth_label(root: Path, depth_dir: str) -> str:
 
 def feepe_label(options: dict, plain_root: Path, depth_dir: str, noise: MaskNoise | None) -> str:
     """FEEPE's row name from its options and what it saw, as eval.tables names runs."""
-    name = f"FEEPE {options['variant']}" + (" + depth ICP (ours)" if options.get("icp") else "")
-    if options.get("refine", "none") != "none":
-        outline = " of the robot" if options.get("silhouette", "ee") != "ee" else ""
-        name += f" + {options['refine']}{outline} (ours)"
+    name = method_label("FEEPE", options)
     seen = [v for v in (_depth_label(plain_root, depth_dir), "perturbed masks" if noise else "") if v]
     return name + (f" ({', '.join(seen)})" if seen else "")
 
@@ -112,7 +110,7 @@ def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: 
         scene = Scene(scene_id, plain_dir, plain_meta, ids)
         cameras = json.loads((plain_dir / "scene_camera.json").read_text())
         plain = {i: observation(scene, i, depth_dir, cameras, noise)[0] for i in ids}
-        hidden = dataclasses.replace(plain_meta, T_cam_base=np.full((4, 4), np.nan))
+        hidden = dataclasses.replace(plain_meta, T_cam_base=NO_POSE.copy())
         for n in views:
             if n > len(ids):
                 raise UserError(f"{marker_dir}: {len(ids)} frames, fewer than --views {n}")

@@ -27,7 +27,7 @@ from feepe.robot_starts import model_points, observed_points, robot_starts
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, contour_fit, contour_term, mask_view, mean_iou
 from feepe.symmetry import consensus
 from syneepose.errors import UserError
-from syneepose.transforms import inv_T
+from syneepose.transforms import inv_T, transform_points
 
 VARIANTS = ("A", "B", "C", "D")
 REFINEMENTS = ("none", "silhouette", "silhouette+depth")
@@ -270,9 +270,8 @@ class Estimator:
         pivot_cam = observed_centre(depth, mask, K)
         if pivot_cam is None:
             return []
-        model_base = np.concatenate([P @ T[:3, :3].T + T[:3, 3] for P, T in zip(self._robot_points, T_base_parts)])
-        centre = self.silhouette.mesh.bounds.mean(0)
-        pivot_base = T_base_parts[0, :3, :3] @ centre + T_base_parts[0, :3, 3]
+        model_base = np.concatenate([transform_points(T, P) for P, T in zip(self._robot_points, T_base_parts)])
+        pivot_base = transform_points(T_base_parts[0], self.silhouette.mesh.bounds.mean(0)[None])[0]
         return robot_starts(model_base, observed_points(depth, robot_mask, K), pivot_base, pivot_cam)
 
     def _refine_silhouette(self, starts: list[np.ndarray], frames: list, clouds: list) -> np.ndarray:

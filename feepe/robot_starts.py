@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from feepe.depth import backproject
-from syneepose.transforms import make_T, transform_points
+from syneepose.transforms import inv_T, make_T, transform_points
 
 N_ROTATIONS = 2000  # uniform on SO(3): neighbours about 15 deg apart
 TRUNCATE_M = 0.05
@@ -63,8 +63,7 @@ def _icp(T_cam_base: np.ndarray, tree: cKDTree, model_base: np.ndarray, seen: np
          iterations: int) -> np.ndarray:
     """Trimmed point-to-point ICP: pairs within a gate that shrinks from 5 to 1.5 cm."""
     for gate in np.geomspace(TRUNCATE_M, 0.015, iterations):
-        T_base_cam = np.linalg.inv(T_cam_base)
-        d, idx = tree.query(transform_points(T_base_cam, seen))
+        d, idx = tree.query(transform_points(inv_T(T_cam_base), seen))
         near = d < gate
         if near.sum() < 10:
             break

@@ -87,44 +87,51 @@ def test_self_collision_known_poses(ur5e_checks):
     assert checks.self_collision(folded[None])[0]
 
 
-def test_planned_segment_meets_every_rule(ur5e_checks):
+def _planned_twice(preset, robot, checks, scene_id, seed, frames, width, height):
+    """The segment plan, asserted to be the same when planned again with the same seed."""
     from syneepose.scene.plan import plan_segment
 
-    robot, checks = ur5e_checks
-    preset = load_preset("mini")
-    spec = plan_segment(preset, robot, checks, 5, 0, 12, 64, 48, 2)
-    again = plan_segment(preset, robot, checks, 5, 0, 12, 64, 48, 2)
+    spec = plan_segment(preset, robot, checks, scene_id, seed, frames, width, height, 2)
+    again = plan_segment(preset, robot, checks, scene_id, seed, frames, width, height, 2)
     np.testing.assert_array_equal(spec.q, again.q)
     np.testing.assert_array_equal(spec.T_base_cam, again.T_base_cam)
+    if spec.marker is not None:
+        np.testing.assert_array_equal(spec.marker.T_ee_board, again.marker.T_ee_board)
+    return spec
+
+
+def _assert_arm_rules(spec, checks, preset, width, height):
+    """No self-collision, above the floor, the end-effector inside the image and visible enough."""
     assert not checks.self_collision(spec.q).any()
     assert checks.above_floor(spec.q, 0.1).all()
-    inside, visible = checks.check(spec.q, spec.T_base_cam, spec.K, 64, 48)
+    inside, visible = checks.check(spec.q, spec.T_base_cam, spec.K, width, height)
     assert (inside >= 0.999).all() and (visible >= preset["camera"]["min_visible"]).all()
+
+
+def test_planned_segment_meets_every_rule(ur5e_checks):
+    robot, checks = ur5e_checks
+    preset = load_preset("mini")
+    spec = _planned_twice(preset, robot, checks, 5, 0, 12, 64, 48)
+    _assert_arm_rules(spec, checks, preset, 64, 48)
     lo, hi = np.array(robot.arm.limits).T
     assert ((spec.q >= lo) & (spec.q <= hi)).all()
 
 
 def test_stations_show_the_whole_board_face_on_and_spread_apart(ur5e_checks):
     """The fair marker peer's stations: every rule holds in every frame, and the same seed plans the same."""
-    from syneepose.scene.plan import plan_segment
-    from syneepose.scene.stations import facing
+    from syneepose.scene.marker import facing
     from syneepose.transforms import rotation_angle
 
     robot, checks = ur5e_checks
     preset = load_preset("targeting-stations")
-    spec = plan_segment(preset, robot, checks, 0, 3, 8, 640, 480, 2)
-    again = plan_segment(preset, robot, checks, 0, 3, 8, 640, 480, 2)
-    np.testing.assert_array_equal(spec.q, again.q)
-    np.testing.assert_array_equal(spec.marker.T_ee_board, again.marker.T_ee_board)
+    spec = _planned_twice(preset, robot, checks, 0, 3, 8, 640, 480)
     T_cam_board = inv_T(spec.T_base_cam) @ robot.T_base_ee(spec.q) @ spec.marker.T_ee_board
     tilt = np.rad2deg(np.arccos(facing(T_cam_board, spec.marker)))
     assert (tilt <= preset["stations"]["max_tilt_deg"] + 1e-6).all()
     corners = transform_points(spec.marker.T_ee_board, spec.marker.corners())
     inside, seen = checks.seen(spec.q, spec.T_base_cam, spec.K, 640, 480, corners, ee_occludes=True)
     assert (inside == 1).all() and (seen == 1).all()
-    inside, visible = checks.check(spec.q, spec.T_base_cam, spec.K, 640, 480)
-    assert (inside >= 0.999).all() and (visible >= preset["camera"]["min_visible"]).all()
-    assert not checks.self_collision(spec.q).any() and checks.above_floor(spec.q, 0.1).all()
+    _assert_arm_rules(spec, checks, preset, 640, 480)
     R = robot.T_base_ee(spec.q)[:, :3, :3]
     closest = min(rotation_angle(R[i], R[j]) for i in range(len(R)) for j in range(i))
     assert np.rad2deg(closest) > 5  # stations, not a slow motion: hand-eye needs distinct rotations

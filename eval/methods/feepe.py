@@ -82,16 +82,9 @@ class Feepe:
         self._current.reset(arm=self._arm[2] if self._arm else None)
 
     def _arm_models(self, meta: SceneMeta) -> tuple:
-        from syneepose.robots.robot import load_robot
-
         config = f"{meta.arm}+{meta.end_effector}"
-        if not meta.links:
-            raise UserError(f"--silhouette robot needs the robot's visible mask, robot_mask_visib/, which this "
-                            f"{config} scene lacks (rendered before it existed); render the data set again")
         if config not in self._arms:
-            robot = load_robot(config)
-            links = meta.links[:-1]  # the last part is the end-effector, fitted by its BOP model
-            self._arms[config] = (robot, links, [SilhouetteModel(link_mesh(robot, name)) for name in links])
+            self._arms[config] = arm_models(meta)
         return self._arms[config]
 
     def estimate(self, obs: Observation) -> Estimate:
@@ -99,12 +92,30 @@ class Feepe:
         if self._arm is not None:
             if obs.robot_mask is None:
                 raise UserError(f"frame {obs.im_id}: --silhouette robot needs its robot mask (robot_mask_visib/)")
-            arm, links, _ = self._arm
-            T_base_link = arm.T_base_link(obs.joint_positions)
-            robot = RobotView(obs.robot_mask, np.stack([T_base_link[name] for name in links]))
+            robot = robot_view(self._arm, obs.robot_mask, obs.joint_positions)
         r = self._current.step(obs.rgb, obs.depth, obs.mask, obs.K, obs.T_base_ee, robot)
         return Estimate(T_cam_ee=r.T_cam_ee, score=r.score, time_s=r.timings["total"] / 1000.0,
                         T_cam_base=r.T_cam_base, extra={"timings_ms": r.timings, "n_key_frames": r.n_key_frames})
+
+
+def arm_models(meta: SceneMeta) -> tuple:
+    """(Robot, the arm links with a mesh, their silhouette models) for a scene rendered with robot masks."""
+    from syneepose.robots.robot import load_robot
+
+    config = f"{meta.arm}+{meta.end_effector}"
+    if not meta.links:
+        raise UserError(f"--silhouette robot needs the robot's visible mask, robot_mask_visib/, which this "
+                        f"{config} scene lacks (rendered before it existed); render the data set again")
+    robot = load_robot(config)
+    links = meta.links[:-1]  # the last part is the end-effector, fitted by its BOP model
+    return robot, links, [SilhouetteModel(link_mesh(robot, name)) for name in links]
+
+
+def robot_view(arm: tuple, robot_mask: np.ndarray, joint_positions: np.ndarray) -> RobotView:
+    """The robot mask and each arm link's pose in the base frame (FK of the joint positions)."""
+    robot, links, _ = arm
+    T_base_link = robot.T_base_link(joint_positions)
+    return RobotView(robot_mask, np.stack([T_base_link[name] for name in links]))
 
 
 def link_mesh(robot, name: str) -> trimesh.Trimesh:

@@ -87,6 +87,14 @@ def board_pose(board: MarkerBoard, yaw: float, radius: float, clearance: float, 
     return make_T(R, centre - R @ np.array([w / 2, h / 2, 0.0]))
 
 
+def facing(T_cam_board: np.ndarray, board: MarkerBoard) -> np.ndarray:
+    """Cosine between each board's face normal and the direction from its centre to the camera, (n,)."""
+    w, h = board.size
+    centre = T_cam_board[:, :3, :3] @ np.array([w / 2, h / 2, 0.0]) + T_cam_board[:, :3, 3]
+    face = -T_cam_board[:, :3, 2]
+    return np.sum(face * -centre, 1) / np.linalg.norm(centre, axis=1)
+
+
 def mount_facing_camera(board: MarkerBoard, T_cam_ee: np.ndarray, radius: float, clearance: float = 0.01,
                         height: float = 0.06, steps: int = 72) -> MarkerBoard:
     """The board turned about the tool axis to maximise its worst-frame facing of the camera.
@@ -95,11 +103,7 @@ def mount_facing_camera(board: MarkerBoard, T_cam_ee: np.ndarray, radius: float,
     """
     best, best_score = None, -np.inf
     for yaw in np.linspace(0.0, 2 * np.pi, steps, endpoint=False):
-        T_cam_board = T_cam_ee @ board_pose(board, yaw, radius, clearance, height)
-        w, h = board.size
-        centre = T_cam_board[:, :3, :3] @ np.array([w / 2, h / 2, 0.0]) + T_cam_board[:, :3, 3]
-        face = -T_cam_board[:, :3, 2]
-        score = np.min(np.sum(face * -centre, 1) / np.linalg.norm(centre, axis=1))
+        score = np.min(facing(T_cam_ee @ board_pose(board, yaw, radius, clearance, height), board))
         if score > best_score:
             best, best_score = yaw, score
     return MarkerBoard(board.dictionary, board.squares, board.square, board.marker, board.margin,

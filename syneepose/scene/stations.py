@@ -16,11 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from syneepose.errors import UserError
-from syneepose.scene.marker import MarkerBoard, board_from_preset, board_pose
+from syneepose.scene.marker import MarkerBoard, board_from_preset, board_pose, facing
 from syneepose.scene.motion import MotionChecks
 from syneepose.scene.sample import rng_for, sample_segment
 from syneepose.scene.spec import SegmentSpec
-from syneepose.transforms import inv_T, rotation_angle
+from syneepose.transforms import inv_T, rotation_angle, transform_points
 
 MAX_CAMERAS, YAW_STEPS = 20, 72
 
@@ -42,14 +42,6 @@ class StationRules:
             raise UserError(f"preset {preset.get('name')}: stations: max_tilt_deg must lie in (0, 90) and pool "
                             f"be positive, got {rules.max_tilt_deg} and {rules.pool}")
         return rules
-
-
-def facing(T_cam_board: np.ndarray, board: MarkerBoard) -> np.ndarray:
-    """Cosine between each board's face normal and the direction from its centre to the camera."""
-    w, h = board.size
-    centre = T_cam_board[:, :3, :3] @ np.array([w / 2, h / 2, 0.0]) + T_cam_board[:, :3, 3]
-    face = -T_cam_board[:, :3, 2]
-    return np.sum(face * -centre, 1) / np.linalg.norm(centre, axis=1)
 
 
 def spread_apart(R: np.ndarray, n: int, first: int) -> list[int]:
@@ -90,7 +82,7 @@ def plan_stations(preset: dict, robot, checks: MotionChecks, scene_id: int, seed
         keep = np.flatnonzero(facing(T_cam_ee @ T_ee_board, board) >= cos_tilt)
         if len(keep) < n_frames:
             continue
-        corners = board.corners() @ T_ee_board[:3, :3].T + T_ee_board[:3, 3]
+        corners = transform_points(T_ee_board, board.corners())
         inside, seen = checks.seen(pool[keep], spec.T_base_cam, spec.K, width, height, corners, margin,
                                    ee_occludes=True)
         keep = keep[(inside >= 1.0) & (seen >= 1.0)]
