@@ -18,7 +18,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from feepe.depth import backproject
-from feepe.optimize import point_jacobian
+from feepe.optimize import row_jacobian
 from syneepose.errors import UserError
 from syneepose.transforms import inv_T, transform_points
 
@@ -93,7 +93,7 @@ class PlaneTerm:
         e = (np.sum(n * (pl.target_cam - Q - T_cam_base[:3, 3]), 1) * self.inv_sigma)[:, None]
         if not jacobian:
             return e, None
-        return e, -(n[:, None, :] @ point_jacobian(Q)) * self.inv_sigma[:, None, None]
+        return e, row_jacobian(Q, -n * self.inv_sigma[:, None])
 
 
 def sensor_plane_term(planes: PlaneTerms, T_cam_base: np.ndarray, sigma_0: float, k_z2: float,

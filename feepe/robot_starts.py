@@ -22,6 +22,7 @@ from syneepose.transforms import inv_T, make_T, transform_points
 N_ROTATIONS = 2000  # uniform on SO(3): neighbours about 15 deg apart
 TRUNCATE_M = 0.05
 MAX_OBSERVED = 600
+COARSE_POINTS, COARSE_KEEP = 60, 100  # every rotation is scored on an even tenth of the points, the best on all
 
 
 def model_points(meshes: list[trimesh.Trimesh], n: int = 4000) -> list[np.ndarray]:
@@ -49,14 +50,21 @@ def robot_starts(model_base: np.ndarray, seen: np.ndarray, pivot_base: np.ndarra
     tree = cKDTree(model_base)
     R = Rotation.random(N_ROTATIONS, random_state=0).as_matrix()  # R_cam_base candidates
     local = seen - pivot_cam
-    in_base = np.einsum("rji,mj->rmi", R, local) + pivot_base  # R^T (p - pivot_cam) + pivot_base
-    d, _ = tree.query(in_base.reshape(-1, 3), distance_upper_bound=TRUNCATE_M)
-    score = np.minimum(d, TRUNCATE_M).reshape(N_ROTATIONS, len(seen)).mean(1)
+    coarse = local[np.linspace(0, len(local) - 1, min(COARSE_POINTS, len(local))).astype(int)]
+    keep = np.argsort(_score(R, coarse, tree, pivot_base), kind="stable")[:COARSE_KEEP]
+    R = R[keep]
     starts = []
-    for r in np.argsort(score)[:n_best]:
+    for r in np.argsort(_score(R, local, tree, pivot_base), kind="stable")[:n_best]:
         T = make_T(R[r], pivot_cam - R[r] @ pivot_base)
         starts.append(_icp(T, tree, model_base, seen, iterations))
     return starts
+
+
+def _score(R: np.ndarray, local: np.ndarray, tree: cKDTree, pivot_base: np.ndarray) -> np.ndarray:
+    """Each rotation's mean truncated distance of the pivot-relative points to the model."""
+    in_base = np.einsum("rji,mj->rmi", R, local) + pivot_base  # R^T (p - pivot_cam) + pivot_base
+    d, _ = tree.query(in_base.reshape(-1, 3), distance_upper_bound=TRUNCATE_M)
+    return np.minimum(d, TRUNCATE_M).reshape(len(R), len(local)).mean(1)
 
 
 def _icp(T_cam_base: np.ndarray, tree: cKDTree, model_base: np.ndarray, seen: np.ndarray,

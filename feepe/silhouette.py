@@ -20,7 +20,7 @@ import trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from feepe.depth import backproject, depth_at
-from feepe.optimize import point_jacobian, project
+from feepe.optimize import project, row_jacobian
 from syneepose.errors import UserError
 from syneepose.transforms import inv_T, transform_points
 
@@ -36,14 +36,17 @@ REUSE_PX = 0.5  # a frame's contour is extracted again once the model has moved 
 class MaskView:
     """One frame's observed mask as a field: signed distance to its boundary (px, > 0 outside), and the
     frame's depth, which tells a visible mask cut by an occluder from the object's own outline."""
-    sdt: np.ndarray  # (H, W) float32
-    grad: np.ndarray  # (H, W, 2) float32, d sdt / d(u, v)
+    field: np.ndarray  # (H, W, 3) float32: the signed distance and its d/du, d/dv, sampled together
     mask: np.ndarray  # (H, W) bool
     K: np.ndarray  # (3, 3) full-image intrinsics
     depth: np.ndarray | None = None  # (H, W) metres, 0 unknown; None: no occlusion reasoning
     # the last contour extracted on this frame per point spacing: (T_cam_parts, visible model points per
     # part). A new key frame moves the calibration a little; the other frames' outlines then stay put.
     contours: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def sdt(self) -> np.ndarray:
+        return self.field[..., 0]
 
     def occluded(self, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Pixels off the visible mask whose observed depth is clearly nearer than `z` (a stereo hole,
@@ -62,7 +65,7 @@ def mask_view(mask: np.ndarray, K: np.ndarray, depth: np.ndarray | None = None) 
     sdt = np.where(m > 0, 0.5 - inside, outside - 0.5).astype(np.float32)
     gu = cv2.Sobel(sdt, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
     gv = cv2.Sobel(sdt, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
-    return MaskView(sdt, np.stack([gu, gv], -1), m > 0, np.asarray(K, float),
+    return MaskView(np.stack([sdt, gu, gv], -1), m > 0, np.asarray(K, float),
                     None if depth is None else np.asarray(depth, float))
 
 
@@ -247,23 +250,24 @@ class SilhouetteTerm:
     """
 
     def __init__(self, base_points: np.ndarray, view: np.ndarray, views: list[MaskView], sigma_px: float):
-        self.base_points, self.view, self.views, self.sigma_px = base_points, view, views, sigma_px
-        self.K = np.array([[v.K[0, 0], v.K[1, 1], v.K[0, 2], v.K[1, 2]] for v in views])[view]
+        order = np.argsort(view, kind="stable")  # each view's points in one slice
+        self.base_points, self.view, self.views, self.sigma_px = base_points[order], view[order], views, sigma_px
+        self.K = np.array([[v.K[0, 0], v.K[1, 1], v.K[0, 2], v.K[1, 2]] for v in views])[self.view]
+        self.bounds = np.searchsorted(self.view, np.arange(len(views) + 1))
 
     def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
         Q = self.base_points @ T_cam_base[:3, :3].T
         uv, dpi = project(Q + T_cam_base[:3, 3], self.K)
-        d = np.zeros(len(uv))
-        g = np.zeros((len(uv), 2))
-        for i, v in enumerate(self.views):
-            at = self.view == i
-            d[at] = sample(v.sdt, uv[at])
+        f = np.zeros((len(uv), 3))  # distance, d/du, d/dv
+        for v, a, b in zip(self.views, self.bounds[:-1], self.bounds[1:]):
             if jacobian:
-                g[at] = sample(v.grad, uv[at])
-        e = (d / self.sigma_px)[:, None]
+                f[a:b] = sample(v.field, uv[a:b])
+            else:
+                f[a:b, 0] = sample(v.sdt, uv[a:b])
+        e = f[:, :1] / self.sigma_px
         if not jacobian:
             return e, None
-        return e, (g[:, None, :] @ dpi @ point_jacobian(Q)) / self.sigma_px
+        return e, row_jacobian(Q, np.einsum("ni,nij->nj", f[:, 1:], dpi) / self.sigma_px)
 
 
 def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
