@@ -37,7 +37,7 @@ def _render(args) -> None:
     from tqdm import tqdm
 
     from syneepose import jobs as J
-    from syneepose import paths
+    from syneepose import paths, resume
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
 
@@ -62,7 +62,12 @@ def _render(args) -> None:
                        args.segments or int(preset["segments"]), args.frames or int(preset["frames"]),
                        width, height, args.samples or int(preset["samples"]), assets, backgrounds,
                        J.parse_shard(args.shard), args.device, args.marker, args.depth, args.sensor)
-    J.write_dataset_info(out, args.preset, jobs, configs, assets)
+    settings = J.job_settings(jobs[0]) if jobs else None
+    if settings is not None:
+        stale = resume.check_resume(out, jobs, settings, args.overwrite)
+        resume.remove_leftovers(out, jobs)
+        resume.clear_scenes(stale)
+    J.write_dataset_info(out, args.preset, jobs, configs, assets, settings)
     done_before = {j: J.frames_done(j) for j in jobs}
     todo = [j for j in jobs if done_before[j] < j.frames]
     bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="frame", desc="render")
@@ -170,6 +175,8 @@ def main(argv=None) -> int:
                    help="stereo: depth/ from a simulated active-stereo sensor, exact depth in depth_gt/; "
                         "both: also keep its IR pair (ir_left/, ir_right/)")
     r.add_argument("--sensor", default="d435", help="sensor profile for --depth stereo|both (scenes/sensors/ or YAML)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="render this run's scenes again from scratch (a rerun with other settings is refused without it)")
     r.add_argument("--executor", choices=["local", "ray"], default="local")
     r.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     r.add_argument("--workers", type=int, default=1, help="local worker processes (Cycles uses all cores)")

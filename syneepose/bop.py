@@ -52,6 +52,7 @@ class SceneMeta:
     marker: dict | None = None  # MarkerBoard.to_json() when a ChArUco board rides on the end-effector
     depth_sensor: dict | None = None  # {"mode": "stereo" | "both", "profile": {...}}; None: exact depth
     links: list[str] | None = None  # robot parts of `robot_mask_visib/` (arm links, then the end-effector)
+    settings: dict | None = None  # what rendered the frames (seed, preset, resolution, ...); a resume must match
 
 
 EXTRAS = {"stereo": ("depth_gt",), "both": ("depth_gt", "ir_left", "ir_right")}
@@ -95,9 +96,24 @@ def _floats(a) -> list[float]:
     return np.asarray(a, dtype=float).ravel().tolist()
 
 
+def read_json(path: Path, fix: str = "delete the scene folder and write it again"):
+    """A JSON file that a kill, a full disk or a hand edit may have broken: one line naming it."""
+    try:
+        return json.loads(Path(path).read_text())
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read ({exc.strerror})") from None
+    except ValueError as exc:
+        raise UserError(f"{path}: not valid JSON ({exc}); {fix}") from None
+
+
 def _load_records(scene_dir: Path) -> dict[str, dict]:
     paths = {name: scene_dir / f"{name}.json" for name in _JSONS}
-    return {name: json.loads(p.read_text()) if p.exists() else {} for name, p in paths.items()}
+    records = {name: read_json(p) if p.exists() else {} for name, p in paths.items()}
+    for name, content in records.items():
+        if not isinstance(content, dict):
+            raise UserError(f"{paths[name]}: holds a {type(content).__name__}, not an object of frames; "
+                            "delete the scene folder and write it again")
+    return records
 
 
 def _ordered(obj):
@@ -197,6 +213,12 @@ def _load_coco(scene_dir: Path, records: dict[str, dict]) -> dict[int, dict]:
     return coco
 
 
+def settings_diff(before: dict, after: dict) -> str:
+    """`key old -> new` for each setting that differs, for one-line refusals."""
+    keys = [k for k in {**before, **after} if before.get(k) != after.get(k)]
+    return ", ".join(f"{k} {before.get(k)} -> {after.get(k)}" for k in keys)
+
+
 def _depth_png(frame: Frame, depth_scale: float) -> np.ndarray:
     """Checks the frame's images and returns its depth as the uint16 PNG values."""
     shapes = {name: np.shape(getattr(frame, name)) for name in ("rgb", "depth", "mask", "mask_visib")}
@@ -234,10 +256,16 @@ class SceneWriter:
         if robot.get("frames") and robot.get("links") != meta.links:
             raise UserError(f"{self.scene_dir} holds frames whose robot parts are {robot.get('links')}, not "
                             f"{meta.links} (a render before {LINK_IDS_DIR}/ existed?); write to another folder")
+        if robot.get("frames") and meta.settings is not None and robot.get("settings", meta.settings) != meta.settings:
+            raise UserError(f"{self.scene_dir} holds frames rendered with other settings "
+                            f"({settings_diff(robot['settings'], meta.settings)}); rerun with the same settings "
+                            "to resume, or --overwrite to render it again")
         self._records["scene_robot"] = {
             "arm": meta.arm, "end_effector": meta.end_effector, "config": f"{meta.arm}+{meta.end_effector}",
             "joint_names": list(meta.joint_names), "T_cam_base": np.asarray(meta.T_cam_base, dtype=float).tolist(),
             "frames": robot.get("frames", {})}
+        if meta.settings is not None:
+            self._records["scene_robot"]["settings"] = meta.settings
         if meta.marker is not None:
             self._records["scene_robot"]["marker"] = meta.marker
         if meta.depth_sensor is not None:
@@ -312,7 +340,12 @@ def split_name(root: Path) -> str:
     """The split a data set was written to, from its dataset_info.json; "train" for data sets (and
     folders without one) from before renders wrote the BOP `test` split."""
     info = Path(root) / "dataset_info.json"
-    return json.loads(info.read_text()).get("split", "train") if info.is_file() else "train"
+    if not info.is_file():
+        return "train"
+    content = read_json(info, "write it again by rendering into the folder, or restore it")
+    if not isinstance(content, dict) or not isinstance(content.get("split", "train"), str):
+        raise UserError(f"{info}: not a data set description (an object with a split name)")
+    return content.get("split", "train")
 
 
 def split_dir(root: Path) -> Path:
@@ -365,7 +398,7 @@ def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
                      end_effector=robot["end_effector"], joint_names=list(robot["joint_names"]),
                      T_cam_base=np.array(robot["T_cam_base"], dtype=float),
                      depth_scale=records["scene_camera"][first]["depth_scale"], marker=robot.get("marker"),
-                     depth_sensor=robot.get("depth_sensor"), links=robot.get("links"))
+                     depth_sensor=robot.get("depth_sensor"), links=robot.get("links"), settings=robot.get("settings"))
     return meta, im_ids
 
 

@@ -6,6 +6,7 @@ so a shard, a resumed run or a `--robots` subset writes the same scene as the fu
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -60,6 +61,7 @@ class Job:
     marker: bool = False
     depth: str = "exact"  # exact | stereo | both
     sensor: str = "d435"  # a profile in scenes/sensors/ or a YAML path
+    segments: int = 1  # per configuration: with the catalogue, it numbers the scenes
 
     @property
     def scene_dir(self) -> Path:
@@ -89,16 +91,31 @@ def make_jobs(preset_name: str, preset: dict, out: Path, configs: list[str], see
         for segment in range(segments):
             scene_id = all_configs.index(config) * segments + segment
             jobs.append(Job(config, scene_id, segment, seed, frames, width, height, samples, str(out), preset_name,
-                            str(assets), backgrounds, device, marker, depth, sensor))
+                            str(assets), backgrounds, device, marker, depth, sensor, segments))
     i, n = shard
     return jobs[i::n]
 
 
+def job_settings(job: Job) -> dict:
+    """What fixes a segment's pixels and ground truth, beside its configuration and scene id: a resume must
+    ask for exactly these, or it would mix two renders in one scene. The preset and the sensor profile count
+    by content (a sha256 of what was read), not by name."""
+    from syneepose.stereo import load_profile
+
+    return {"preset": Path(job.preset).stem, "preset_sha256": _digest(load_preset(job.preset)),
+            "seed": job.seed, "segments": job.segments, "frames": job.frames,
+            "resolution": [job.width, job.height], "samples": job.samples, "device": job.device,
+            "marker": job.marker, "depth": job.depth,
+            "sensor_sha256": None if job.depth == "exact" else _digest(load_profile(job.sensor).source),
+            "backgrounds": [Path(b).name for b in job.backgrounds]}
+
+
+def _digest(content) -> str:
+    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:16]
+
+
 def frames_done(job: Job) -> int:
-    try:
-        return len(json.loads((job.scene_dir / "scene_gt.json").read_text()))
-    except (OSError, ValueError):
-        return 0
+    return len(bop.complete_frames(job.scene_dir)) if job.scene_dir.is_dir() else 0
 
 
 def run_job(job: Job) -> int:
@@ -124,7 +141,7 @@ def run_job(job: Job) -> int:
 
         spec.depth_mode, spec.sensor = job.depth, load_profile(job.sensor)
     with _quiet_stdout():
-        return render_segment(spec, robot, job.scene_dir)
+        return render_segment(spec, robot, job.scene_dir, settings=job_settings(job))
 
 
 def _mounted_board(preset: dict, robot, mesh, spec):
@@ -188,11 +205,15 @@ def run_template_job(job: TemplateJob) -> int:
                                 job.resolution, job.samples, job.device)
 
 
-def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: list[str], assets: Path) -> None:
+def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: list[str], assets: Path,
+                       settings: dict | None = None) -> None:
+    """`settings` (job_settings): what every scene of the data set was rendered with (resume.check_resume)."""
     info_path = out / "dataset_info.json"
     info = {}
     if info_path.is_file():
-        info = json.loads(info_path.read_text())
+        info = bop.read_json(info_path, "restore it, or render into another --out")
+        if not isinstance(info, dict):
+            raise UserError(f"{info_path}: not a data set description (a JSON object); render into another --out")
     first = asdict(jobs[0]) if jobs else {}
     if info.get("split", SPLIT) != SPLIT and info.get("configurations"):
         raise UserError(f"{out} holds a data set in {info['split']}/ (dataset_info.json), renders now write "
@@ -209,6 +230,8 @@ def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: li
                        **({"depth_gt": "exact"} if first.get("depth", "exact") != "exact" else {})},
         "versions": {"syneepose": __version__, "bpy": version("bpy")},
     })
+    if settings is not None:
+        info["settings"] = settings
     if info["depth"] != "exact":
         from syneepose.stereo import load_profile
 

@@ -31,14 +31,15 @@ def _with_sensor_depth(frame: Frame, rig: IrRig, spec: SegmentSpec, workdir: Pat
                    ir_right=right if keep_ir else None)
 
 
-def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=None) -> int:
-    """Render the frames not yet on disk; returns how many were rendered."""
+def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=None, settings: dict | None = None) -> int:
+    """Render the frames not yet on disk; returns how many were rendered. `settings`: what produced them
+    (jobs.job_settings), recorded in scene_robot.json; frames of other settings are refused."""
     writer = SceneWriter(Path(scene_dir), SceneMeta(
         obj_id=robot.ee.obj_id, arm=robot.arm.name, end_effector=robot.ee.name,
         joint_names=list(robot.arm.joints), T_cam_base=inv_T(spec.T_base_cam),
         marker=spec.marker.to_json() if spec.marker is not None else None,
         depth_sensor={"mode": spec.depth_mode, "profile": spec.sensor.source} if spec.sensor is not None else None,
-        links=[*bscene.arm_links(robot.model, set(robot.ee_links)), robot.ee_root]))
+        links=[*bscene.arm_links(robot.model, set(robot.ee_links)), robot.ee_root], settings=settings))
     todo = [i for i in range(spec.n_frames) if not writer.done(i)]
     if not todo:
         return 0

@@ -1,0 +1,120 @@
+"""Reruns into an existing data set resume, refuse or re-render; they never mix two settings.
+
+Tiny renders (64x48, 2 samples, 2 frames) through the real CLI.
+"""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from syneepose.bop import split_dir
+
+ROBOT = "ur5e+robotiq_2f85"
+TINY = ["--preset", "mini", "--resolution", "64x48", "--samples", "2", "--segments", "1", "--frames", "2",
+        "--robots", ROBOT]
+
+
+def _render(out, *args):
+    return subprocess.run([sys.executable, "-m", "syneepose", "render", "--out", str(out), *TINY, *args],
+                          capture_output=True, text=True)
+
+
+def _one_line(proc, *words):
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    [line] = proc.stderr.strip().splitlines()
+    for word in words:
+        assert word in line, line
+    return line
+
+
+def _files(root):
+    return {p.relative_to(root): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def seed0(tmp_path_factory, assets):
+    out = tmp_path_factory.mktemp("resume") / "seed0"
+    proc = _render(out)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return out
+
+
+@pytest.fixture
+def copy(seed0, tmp_path):
+    out = tmp_path / "copy"
+    shutil.copytree(seed0, out)
+    return out
+
+
+def _scene(out):
+    [scene] = [p for p in split_dir(out).iterdir() if p.is_dir()]
+    return scene
+
+
+def test_every_scene_and_the_data_set_record_their_settings(seed0):
+    info = json.loads((seed0 / "dataset_info.json").read_text())["settings"]
+    scene = json.loads((_scene(seed0) / "scene_robot.json").read_text())["settings"]
+    assert info == scene
+    assert (scene["seed"], scene["frames"], scene["resolution"], scene["samples"]) == (0, 2, [64, 48], 2)
+    assert len(scene["preset_sha256"]) == 16
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--seed", "1"], ["seed 0 -> 1"]),
+    (["--frames", "3"], ["frames 2 -> 3"]),
+    (["--samples", "4"], ["samples 2 -> 4"]),
+    (["--resolution", "80x60"], ["resolution [64, 48] -> [80, 60]"]),
+    (["--marker"], ["marker False -> True"]),
+])
+def test_a_rerun_with_other_settings_is_refused_and_writes_nothing(copy, args, words):
+    before = _files(copy)
+    _one_line(_render(copy, *args), "other settings", "--overwrite", *words)
+    assert _files(copy) == before
+
+
+def test_overwrite_renders_the_scene_again_as_a_fresh_run_would(copy, tmp_path):
+    assert _render(copy, "--seed", "1", "--overwrite").returncode == 0
+    fresh = tmp_path / "fresh"
+    assert _render(fresh, "--seed", "1").returncode == 0
+    for name in ("scene_camera.json", "scene_gt.json", "scene_robot.json"):
+        assert (_scene(copy) / name).read_text() == (_scene(fresh) / name).read_text(), name
+    assert json.loads((copy / "dataset_info.json").read_text())["settings"]["seed"] == 1
+    assert not [p for p in copy.rglob("*") if "overwritten" in p.name]
+
+
+def test_overwrite_never_leaves_other_scenes_of_other_settings_behind(copy):
+    before = _files(copy)
+    _one_line(_render(copy, "--samples", "4", "--overwrite", "--robots", "panda+panda_hand"),
+              "--overwrite re-renders this run's scenes only", _scene(copy).name)
+    assert _files(copy) == before
+
+
+def test_a_resume_removes_what_a_killed_run_left(copy):
+    scene = _scene(copy)
+    leftovers = [scene / "tmpk1ll3d.exr", scene / "rgb" / ".000001.png.tmp999999", copy / ".models.tmp999999"]
+    for path in leftovers[:2]:
+        path.write_bytes(b"")
+    leftovers[2].mkdir()
+    assert _render(copy).returncode == 0
+    assert not [p for p in leftovers if p.exists()]
+
+
+def test_a_data_set_from_before_recorded_settings_is_judged_by_its_dataset_info(copy):
+    for path in (copy / "dataset_info.json", _scene(copy) / "scene_robot.json"):
+        content = json.loads(path.read_text())
+        del content["settings"]
+        path.write_text(json.dumps(content))
+    _one_line(_render(copy, "--seed", "3"), "seed 0 -> 3")
+    assert _render(copy).returncode == 0  # the same settings resume, and are recorded from now on
+    assert json.loads((copy / "dataset_info.json").read_text())["settings"]["seed"] == 0
+
+
+@pytest.mark.parametrize("name,content", [("dataset_info.json", "{trunc"), ("dataset_info.json", "[1, 2]"),
+                                          ("scene_gt.json", "{\"0\": [")])
+def test_a_broken_json_file_is_named_in_one_line(copy, name, content):
+    path = copy / name if name == "dataset_info.json" else _scene(copy) / name
+    path.write_text(content)
+    _one_line(_render(copy), path.name)
