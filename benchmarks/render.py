@@ -14,7 +14,7 @@ import numpy as np
 from syneepose import paths
 from syneepose.blender import scene as bscene
 from syneepose.blender.segment import render_segment
-from syneepose.jobs import load_preset
+from syneepose.preset import Render, load_preset
 from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.robot import load_robot
 from syneepose.scene.motion import MotionChecks
@@ -33,8 +33,7 @@ def rss_mb() -> float:
 def spec_for(frames: int, width: int, height: int, samples: int):
     robot = load_robot(CONFIG)
     mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name))
-    preset = load_preset("mini")
-    preset["render"] = {"denoise": False, "max_bounces": 12}
+    preset = load_preset("mini").model_copy(update={"render": Render(denoise=False, max_bounces=12)})
     return robot, plan_segment(preset, robot, MotionChecks(robot, mesh), 0, 0, frames, width, height, samples)
 
 

@@ -8,6 +8,9 @@ from pathlib import Path
 
 from syneepose.cli import run_command
 from syneepose.errors import UserError
+from syneepose.preset import load_preset, templates_with
+
+MAX_WORKERS = 64
 
 
 def _assets(args) -> None:
@@ -23,14 +26,23 @@ def _assets(args) -> None:
         print(f"assets: up to date ({len(configs)} configurations), nothing to do")
 
 
-def _resolution(text: str) -> tuple[int, int]:
+def _resolution(text: str | None) -> list[int] | None:
+    """WxH; the sizes are checked with the preset's (syneepose/preset.py)."""
+    if text is None:
+        return None
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise UserError(f"--resolution {text!r} must be WxH, e.g. 640x480") from None
-    if w < 8 or h < 8:
-        raise UserError(f"--resolution {text!r} is too small (at least 8x8)")
-    return w, h
+    return [w, h]
+
+
+def _check_run(args) -> None:
+    """The flags that are not preset values."""
+    if getattr(args, "seed", 0) < 0:
+        raise UserError(f"--seed {args.seed}: must be >= 0 (numpy seeds are non-negative)")
+    if not 1 <= args.workers <= MAX_WORKERS:
+        raise UserError(f"--workers {args.workers}: must lie in 1..{MAX_WORKERS}")
 
 
 def _render(args) -> None:
@@ -41,9 +53,11 @@ def _render(args) -> None:
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
 
-    preset = J.load_preset(args.preset)
+    _check_run(args)
+    preset = load_preset(args.preset, {"segments": args.segments, "frames": args.frames, "samples": args.samples,
+                                       "resolution": _resolution(args.resolution)})
     configs = load_catalog().parse_configs(args.robots)
-    width, height = _resolution(args.resolution) if args.resolution else tuple(preset["resolution"])
+    width, height = preset.resolution
     out = Path(args.out)
     _writable(out)
     backgrounds = ()
@@ -58,9 +72,8 @@ def _render(args) -> None:
         load_profile(args.sensor)  # a bad profile is one error line here, not one per worker
     assets = paths.assets_dir()
     build_assets(assets, configs, log=lambda *_: None)
-    jobs = J.make_jobs(args.preset, preset, out, configs, args.seed,
-                       args.segments or int(preset["segments"]), args.frames or int(preset["frames"]),
-                       width, height, args.samples or int(preset["samples"]), assets, backgrounds,
+    jobs = J.make_jobs(args.preset, preset, out, configs, args.seed, preset.segments, preset.frames,
+                       width, height, preset.samples, assets, backgrounds,
                        J.parse_shard(args.shard), args.device, args.marker, args.depth, args.sensor)
     settings = J.job_settings(jobs[0]) if jobs else None
     if settings is not None:
@@ -115,17 +128,16 @@ def _templates(args) -> None:
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
 
+    _check_run(args)
     catalog = load_catalog()
-    preset = J.load_preset(args.preset)["templates"]
-    names = list(catalog.end_effectors) if not args.ee else [n.strip() for n in args.ee.split(",") if n.strip()]
-    for name in names:
-        catalog.end_effector(name)
+    settings = templates_with(load_preset(args.preset), {"views": args.views, "inplane": args.inplane,
+                                                         "resolution": args.resolution, "samples": args.samples})
+    names = catalog.parse_end_effectors(args.ee)
     out = Path(args.out)
     _writable(out)
     assets = paths.assets_dir()
     build_assets(assets, [f"panda+{n}" for n in names], log=lambda *_: None)
-    jobs = [J.TemplateJob(n, str(out), args.views or int(preset["views"]), args.inplane or int(preset["inplane"]),
-                          args.resolution or int(preset["resolution"]), args.samples or int(preset["samples"]),
+    jobs = [J.TemplateJob(n, str(out), settings.views, settings.inplane, settings.resolution, settings.samples,
                           str(assets), args.device) for n in names]
     done_before = {j: J.templates_done(j) for j in jobs}
     bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="template",

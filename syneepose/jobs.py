@@ -21,28 +21,13 @@ import numpy as np
 
 from syneepose import __version__, bop, paths
 from syneepose.errors import UserError
+from syneepose.preset import Preset, load_preset
 from syneepose.robots.catalog import load_catalog
 from syneepose.transforms import inv_T
 
-SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 # BOP methods (SAM-6D, FoundationPose, MegaPose) and bop_toolkit's eval scripts read `test` + test_targets.
 SPLIT = "test"
 NAME = "syneepose"  # the BOP data set name of result files: METHOD_syneepose-test.csv
-PRESET_KEYS = {"name", "segments", "frames", "resolution", "samples", "render", "camera", "motion", "lights",
-               "world", "backdrop", "distractors", "templates", "marker", "stations"}
-
-
-def load_preset(name_or_path: str) -> dict:
-    path, preset = paths.named_yaml(name_or_path, SCENES_DIR, "preset")
-    unknown = set(preset) - PRESET_KEYS
-    if unknown:
-        raise UserError(f"preset {path}: unknown keys {sorted(unknown)}; allowed: {sorted(PRESET_KEYS)}")
-    for key in ("camera", "motion", "lights", "backdrop"):
-        if key not in preset:
-            raise UserError(f"preset {path}: missing section {key!r}")
-    return preset
-
-
 @dataclass(frozen=True)
 class Job:
     config: str
@@ -81,7 +66,7 @@ def parse_shard(text: str | None) -> tuple[int, int]:
     return i, n
 
 
-def make_jobs(preset_name: str, preset: dict, out: Path, configs: list[str], seed: int, segments: int,
+def make_jobs(preset_name: str, preset: Preset, out: Path, configs: list[str], seed: int, segments: int,
               frames: int, width: int, height: int, samples: int, assets: Path,
               backgrounds: tuple[str, ...] = (), shard: tuple[int, int] = (0, 1), device: str = "cpu",
               marker: bool = False, depth: str = "exact", sensor: str = "d435") -> list[Job]:
@@ -102,7 +87,7 @@ def job_settings(job: Job) -> dict:
     by content (a sha256 of what was read), not by name."""
     from syneepose.stereo import load_profile
 
-    return {"preset": Path(job.preset).stem, "preset_sha256": _digest(load_preset(job.preset)),
+    return {"preset": Path(job.preset).stem, "preset_sha256": _digest(load_preset(job.preset).digest_content()),
             "seed": job.seed, "segments": job.segments, "frames": job.frames,
             "resolution": [job.width, job.height], "samples": job.samples, "device": job.device,
             "marker": job.marker, "depth": job.depth,
@@ -144,7 +129,7 @@ def run_job(job: Job) -> int:
         return render_segment(spec, robot, job.scene_dir, settings=job_settings(job))
 
 
-def _mounted_board(preset: dict, robot, mesh, spec):
+def _mounted_board(preset: Preset, robot, mesh, spec):
     """The preset's board turned to face this segment's camera."""
     from syneepose.scene.marker import board_from_preset, mount_facing_camera
 
@@ -247,7 +232,7 @@ def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: li
             os.replace(staging, out / name)
 
 
-def write_root_files(out: Path, preset: dict, width: int, height: int) -> None:
+def write_root_files(out: Path, preset: Preset, width: int, height: int) -> None:
     """camera.json and the test targets over every scene now in `out` (see bop.write_root_files)."""
     from syneepose.scene.sample import nominal_intrinsics
 

@@ -24,6 +24,8 @@ TEXT = (235, 235, 235)
 FONT, FONT_SCALE, LINE_H = cv2.FONT_HERSHEY_SIMPLEX, 0.35, 14
 PAD = 4
 
+MAX_FRAMES, MAX_WIDTH = 16, 640  # a sheet is for looking at: 18 configurations x 16 frames x 640x480 is ~270 MB
+
 
 @dataclass
 class Tile:
@@ -117,8 +119,10 @@ def scenes_by_config(root: Path) -> dict[str, list[tuple[int, Path, list[int]]]]
 
 def contact_sheet(root: Path, frames: int = 4, width: int = 160, columns: int = 3) -> Sheet:
     """One tile per configuration with `frames` frames spread evenly over its segments' frames."""
-    if frames < 1 or width < 32:
-        raise UserError(f"--frames {frames} / --width {width}: need at least 1 frame and 32 pixels")
+    if not 1 <= frames <= MAX_FRAMES:
+        raise UserError(f"--frames {frames}: must lie in 1..{MAX_FRAMES} frames per configuration")
+    if not 32 <= width <= MAX_WIDTH:
+        raise UserError(f"--width {width}: must lie in 32..{MAX_WIDTH} pixels per frame")
     tiles, images = [], []
     for config, scenes in scenes_by_config(root).items():
         pairs = [(scene_id, scene_dir, im_id) for scene_id, scene_dir, im_ids in scenes for im_id in im_ids]

@@ -13,6 +13,7 @@ from pycocotools.coco import COCO
 from syneepose import bop, jobs
 from syneepose.bop import Frame, SceneMeta, SceneWriter, split_dir, split_name, write_root_files
 from syneepose.errors import UserError
+from syneepose.preset import load_preset
 from syneepose.transforms import make_T
 
 H, W, FRAMES = 12, 16, 12  # 12 frames: keys "10" and "11" sort before "2" as strings
@@ -199,7 +200,7 @@ def test_resuming_a_train_data_set_is_refused(tmp_path):
 
 def test_camera_json_is_the_presets_nominal_camera(tmp_path):
     root = _dataset(tmp_path / "set", scenes=(0,))
-    jobs.write_root_files(root, jobs.load_preset("mini"), 320, 240)  # hfov 50-70 deg, principal point jittered
+    jobs.write_root_files(root, load_preset("mini"), 320, 240)  # hfov 50-70 deg, principal point jittered
     camera = _load(root / "camera.json")
     assert camera["fx"] == camera["fy"] == pytest.approx(160 / np.tan(np.deg2rad(30)))
     assert (camera["cx"], camera["cy"], camera["width"], camera["height"]) == (159.5, 119.5, 320, 240)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from syneepose.errors import UserError
-from syneepose.jobs import load_preset, make_jobs, parse_shard
+from syneepose.jobs import make_jobs, parse_shard
+from syneepose.preset import load_preset, parse_preset
 from syneepose.scene.motion import min_jerk, trajectory
 from syneepose.scene.sample import kelvin_to_rgb, look_at, rng_for
 from syneepose.templates import fibonacci_sphere, poses
@@ -105,7 +106,7 @@ def _assert_arm_rules(spec, checks, preset, width, height):
     assert not checks.self_collision(spec.q).any()
     assert checks.above_floor(spec.q, 0.1).all()
     inside, visible = checks.check(spec.q, spec.T_base_cam, spec.K, width, height)
-    assert (inside >= 0.999).all() and (visible >= preset["camera"]["min_visible"]).all()
+    assert (inside >= 0.999).all() and (visible >= preset.camera.min_visible).all()
 
 
 def test_planned_segment_meets_every_rule(ur5e_checks):
@@ -127,7 +128,7 @@ def test_stations_show_the_whole_board_face_on_and_spread_apart(ur5e_checks):
     spec = _planned_twice(preset, robot, checks, 0, 3, 8, 640, 480)
     T_cam_board = inv_T(spec.T_base_cam) @ robot.T_base_ee(spec.q) @ spec.marker.T_ee_board
     tilt = np.rad2deg(np.arccos(facing(T_cam_board, spec.marker)))
-    assert (tilt <= preset["stations"]["max_tilt_deg"] + 1e-6).all()
+    assert (tilt <= preset.stations.max_tilt_deg + 1e-6).all()
     corners = transform_points(spec.marker.T_ee_board, spec.marker.corners())
     inside, seen = checks.seen(spec.q, spec.T_base_cam, spec.K, 640, 480, corners, ee_occludes=True)
     assert (inside == 1).all() and (seen == 1).all()
@@ -137,10 +138,11 @@ def test_stations_show_the_whole_board_face_on_and_spread_apart(ur5e_checks):
     assert np.rad2deg(closest) > 5  # stations, not a slow motion: hand-eye needs distinct rotations
 
 
-def test_stations_refuse_an_impossible_tilt(ur5e_checks):
-    from syneepose.scene.stations import StationRules
+def test_stations_refuse_an_impossible_tilt():
+    import yaml
 
-    with pytest.raises(UserError, match="stations: max_tilt_deg"):
-        StationRules.from_preset({"name": "x", "stations": {"max_tilt_deg": 95}})
-    with pytest.raises(UserError, match="unknown keys"):
-        StationRules.from_preset({"name": "x", "stations": {"tilt": 10}})
+    content = yaml.safe_load(open("scenes/targeting-stations.yaml"))
+    with pytest.raises(UserError, match="stations.max_tilt_deg = 95: input should be less than 90"):
+        parse_preset({**content, "stations": {"max_tilt_deg": 95}})
+    with pytest.raises(UserError, match="unknown key 'stations.tilt'"):
+        parse_preset({**content, "stations": {"tilt": 10}})

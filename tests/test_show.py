@@ -48,7 +48,8 @@ def test_template_sheet_per_end_effector(tiny_dataset, tmp_path):
 def test_show_mistakes_are_one_line(tiny_dataset, tmp_path):
     for args, message in (([tmp_path / "nothing"], "no train/ folder"),
                           ([tiny_dataset, "--out", tmp_path / "sheet.jpg"], "give a .png file name"),
-                          ([tiny_dataset, "--out", tmp_path / "s.png", "--frames", 0], "at least 1 frame")):
+                          ([tiny_dataset, "--out", tmp_path / "s.png", "--frames", 0], "--frames 0: must lie in 1..16"),
+                          ([tiny_dataset, "--out", tmp_path / "s.png", "--width", 100000], "--width 100000")):
         proc = _show(*args)
         assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
         assert proc.stderr.count("\n") == 1

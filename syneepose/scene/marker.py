@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from syneepose.errors import UserError
+from syneepose.preset import Marker, Preset
 from syneepose.transforms import make_T
 
 
@@ -66,15 +67,12 @@ class MarkerBoard:
                    np.array(d["T_ee_board"], dtype=float))
 
 
-def board_from_preset(preset: dict) -> tuple[MarkerBoard, dict]:
+def board_from_preset(preset: Preset) -> tuple[MarkerBoard, dict]:
     """The preset's `marker:` section (defaults otherwise): the board, and how it is mounted (clearance,
     height) as keyword arguments of `board_pose`."""
-    params = dict(preset.get("marker") or {})
-    mount = {k: float(params.pop(k)) for k in ("clearance", "height") if k in params}
-    try:
-        return MarkerBoard(**params), mount
-    except TypeError as exc:
-        raise UserError(f"preset {preset.get('name')}: marker section: {exc}") from None
+    m = preset.marker or Marker()
+    mount = {k: v for k, v in (("clearance", m.clearance), ("height", m.height)) if v is not None}
+    return MarkerBoard(m.dictionary, m.squares, m.square, m.marker, m.margin), mount
 
 
 def board_pose(board: MarkerBoard, yaw: float, radius: float, clearance: float, height: float) -> np.ndarray:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from syneepose.errors import UserError
+from syneepose.preset import Preset
 from syneepose.scene.motion import MotionChecks, trajectory
 from syneepose.scene.sample import rng_for, sample_segment
 from syneepose.scene.spec import SegmentSpec
@@ -13,20 +14,17 @@ from syneepose.scene.spec import SegmentSpec
 MAX_TRAJECTORIES, MAX_CAMERAS = 30, 10
 
 
-def plan_segment(preset: dict, robot, checks: MotionChecks, scene_id: int, seed: int, n_frames: int,
+def plan_segment(preset: Preset, robot, checks: MotionChecks, scene_id: int, seed: int, n_frames: int,
                  width: int, height: int, samples: int, images: list[str] | None = None) -> SegmentSpec:
-    if "stations" in preset:
+    if preset.stations is not None:
         from syneepose.scene.stations import plan_stations
 
         return plan_stations(preset, robot, checks, scene_id, seed, n_frames, width, height, samples, images)
     rng = rng_for(seed, robot.config, scene_id)
-    motion = preset["motion"]
-    min_visible = float(preset["camera"].get("min_visible", 0.5))
-    margin = float(preset["camera"].get("margin", 0.02))
+    motion, min_visible, margin = preset.motion, preset.camera.min_visible, preset.camera.margin
     for _ in range(MAX_TRAJECTORIES):
-        q = trajectory(rng, robot.arm.home, robot.arm.limits, n_frames, int(motion["waypoints"]),
-                       float(motion["spread"]))
-        if not checks.above_floor(q, float(motion.get("clearance", 0.1))).all() or checks.self_collision(q).any():
+        q = trajectory(rng, robot.arm.home, robot.arm.limits, n_frames, motion.waypoints, motion.spread)
+        if not checks.above_floor(q, motion.clearance).all() or checks.self_collision(q).any():
             continue
         for _ in range(MAX_CAMERAS):
             spec = sample_segment(rng, preset, robot, robot.config, scene_id, seed, q, width, height, samples,

@@ -1,4 +1,4 @@
-"""Seeded domain randomisation: a preset (dict of ranges) + a seed -> a SegmentSpec.
+"""Seeded domain randomisation: a preset (typed ranges, syneepose/preset.py) + a seed -> a SegmentSpec.
 
 Everything here is pure numpy; the same (preset, config, scene_id, seed) gives the same spec.
 """
@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from syneepose.errors import UserError
-from syneepose.scene.spec import SURFACE_KINDS, Distractor, Light, Plane, SegmentSpec, Surface
+from syneepose.preset import Preset
+from syneepose.scene.spec import Distractor, Light, Plane, SegmentSpec, Surface
 from syneepose.transforms import make_T
 
 
@@ -50,43 +50,39 @@ def _K(hfov_deg: float, width: int, height: int, dx: float = 0.0, dy: float = 0.
     return np.array([[f, 0.0, (width - 1) / 2 + dx * width], [0.0, f, (height - 1) / 2 + dy * height], [0.0, 0.0, 1.0]])
 
 
-def intrinsics(rng, preset: dict, width: int, height: int) -> np.ndarray:
+def intrinsics(rng, preset: Preset, width: int, height: int) -> np.ndarray:
     """Square pixels; focal length from a horizontal field of view; principal point jittered."""
-    fov = uniform(rng, preset["camera"]["hfov_deg"])
-    jitter = preset["camera"].get("principal_jitter", 0.0)
+    fov = uniform(rng, preset.camera.hfov_deg)
+    jitter = preset.camera.principal_jitter
     dx, dy = rng.uniform(-jitter, jitter), rng.uniform(-jitter, jitter)
     return _K(fov, width, height, dx, dy)
 
 
-def nominal_intrinsics(preset: dict, width: int, height: int) -> np.ndarray:
+def nominal_intrinsics(preset: Preset, width: int, height: int) -> np.ndarray:
     """The camera the sampler varies around (mid-range field of view, centred principal point): BOP's
     camera.json for a data set whose K differs per segment."""
-    return _K(float(np.mean(preset["camera"]["hfov_deg"])), width, height)
+    return _K(float(np.mean(preset.camera.hfov_deg)), width, height)
 
 
-def random_surface(rng, preset: dict) -> Surface:
-    kinds = preset["backdrop"].get("kinds", list(SURFACE_KINDS))
-    bad = set(kinds) - set(SURFACE_KINDS)
-    if bad:
-        raise UserError(f"preset backdrop kinds {sorted(bad)} unknown; use {', '.join(SURFACE_KINDS)}")
-    value = preset["backdrop"].get("value", [0.05, 0.8])
+def random_surface(rng, preset: Preset) -> Surface:
+    value = preset.backdrop.value
     return Surface(
-        kind=str(rng.choice(kinds)),
+        kind=str(rng.choice(list(preset.backdrop.kinds))),
         color_a=tuple(float(c) for c in rng.uniform(*value, 3) ** 2.2),
         color_b=tuple(float(c) for c in rng.uniform(*value, 3) ** 2.2),
-        scale=uniform(rng, preset["backdrop"].get("scale", [1.0, 20.0])),
+        scale=uniform(rng, preset.backdrop.scale),
         roughness=uniform(rng, [0.2, 0.9]),
     )
 
 
-def backdrop(rng, preset: dict, images: list[str]) -> list[Plane]:
+def backdrop(rng, preset: Preset, images: list[str]) -> list[Plane]:
     """A floor under the robot and 0-3 walls around it, each with its own surface."""
-    size = preset["backdrop"].get("extent", 8.0)
+    size = preset.backdrop.extent
     planes = [Plane(make_T(t=[0.0, 0.0, -0.001]), (size, size), random_surface(rng, preset))]
-    n_walls = int(rng.integers(*preset["backdrop"].get("walls", [0, 3]), endpoint=True))
+    n_walls = int(rng.integers(*preset.backdrop.walls, endpoint=True))
     for k in rng.permutation(4)[:n_walls]:
         yaw = k * np.pi / 2
-        distance = uniform(rng, preset["backdrop"].get("wall_distance", [1.5, 3.0]))
+        distance = uniform(rng, preset.backdrop.wall_distance)
         # The wall's normal (+z of the plane) faces the robot.
         direction = np.array([np.cos(yaw), np.sin(yaw), 0.0])
         z = -direction
@@ -99,63 +95,63 @@ def backdrop(rng, preset: dict, images: list[str]) -> list[Plane]:
     return planes
 
 
-def lights(rng, preset: dict, target: np.ndarray) -> list[Light]:
-    p = preset["lights"]
+def lights(rng, preset: Preset, target: np.ndarray) -> list[Light]:
+    p = preset.lights
     out = []
-    for _ in range(int(rng.integers(*p["count"], endpoint=True))):
-        kind = str(rng.choice(p.get("kinds", ["AREA", "POINT", "SUN"])))
-        azimuth, elevation = rng.uniform(0, 2 * np.pi), np.deg2rad(uniform(rng, p.get("elevation_deg", [20, 80])))
-        distance = uniform(rng, p.get("distance", [1.5, 4.0]))
+    for _ in range(int(rng.integers(*p.count, endpoint=True))):
+        kind = str(rng.choice(list(p.kinds)))
+        azimuth, elevation = rng.uniform(0, 2 * np.pi), np.deg2rad(uniform(rng, p.elevation_deg))
+        distance = uniform(rng, p.distance)
         eye = target + distance * np.array([np.cos(azimuth) * np.cos(elevation),
                                             np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
         T = look_at(eye, target) @ np.diag([1.0, -1.0, -1.0, 1.0])  # Blender lights shine along -z
-        color = kelvin_to_rgb(uniform(rng, p.get("kelvin", [2700, 7500])))
+        color = kelvin_to_rgb(uniform(rng, p.kelvin))
         if kind == "SUN":
-            energy, size = uniform(rng, p.get("sun_strength", [0.5, 3.0])), np.deg2rad(uniform(rng, [0.5, 10]))
+            energy, size = uniform(rng, p.sun_strength), np.deg2rad(uniform(rng, [0.5, 10]))
         else:
-            energy = uniform(rng, p.get("power_w", [40, 300])) * (distance / 2.0) ** 2
+            energy = uniform(rng, p.power_w) * (distance / 2.0) ** 2
             size = uniform(rng, [0.1, 1.0])
         out.append(Light(kind, T, color, energy, size))
     return out
 
 
-def distractors(rng, preset: dict, avoid: np.ndarray) -> list[Distractor]:
+def distractors(rng, preset: Preset, avoid: np.ndarray) -> list[Distractor]:
     """Objects on the floor, kept away from the robot base and the end-effector path (xy)."""
-    p = preset.get("distractors", {"count": [0, 0]})
+    p = preset.distractors
     out = []
-    for _ in range(int(rng.integers(*p["count"], endpoint=True))):
+    for _ in range(int(rng.integers(*p.count, endpoint=True))):
         for _attempt in range(20):
             xy = rng.uniform(-1.5, 1.5, 2)
             if np.linalg.norm(xy) > 0.3 and np.min(np.linalg.norm(avoid[:, :2] - xy, axis=1)) > 0.3:
                 break
-        size = uniform(rng, p.get("size", [0.05, 0.3]))
+        size = uniform(rng, p.size)
         kind = str(rng.choice(["cube", "sphere", "cylinder", "torus"]))
         T = make_T(t=[xy[0], xy[1], size / 2])
         out.append(Distractor(kind, size, T, random_surface(rng, preset)))
     return out
 
 
-def sample_segment(rng, preset: dict, robot, config: str, scene_id: int, seed: int, q: np.ndarray,
+def sample_segment(rng, preset: Preset, robot, config: str, scene_id: int, seed: int, q: np.ndarray,
                    width: int, height: int, samples: int, images: list[str] | None = None) -> SegmentSpec:
     """Camera, lights and backdrop around a given arm trajectory `q` (see motion.py)."""
     ee_path = robot.T_base_ee(q)[:, :3, 3]
     target = ee_path.mean(0)
     K = intrinsics(rng, preset, width, height)
-    cam = preset["camera"]
-    azimuth = np.deg2rad(uniform(rng, cam.get("azimuth_deg", [-180, 180])))
-    elevation = np.deg2rad(uniform(rng, cam.get("elevation_deg", [5, 60])))
-    distance = uniform(rng, cam["distance"])
+    cam = preset.camera
+    azimuth = np.deg2rad(uniform(rng, cam.azimuth_deg))
+    elevation = np.deg2rad(uniform(rng, cam.elevation_deg))
+    distance = uniform(rng, cam.distance)
     eye = target + distance * np.array([np.cos(azimuth) * np.cos(elevation),
                                         np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
     eye[2] = max(eye[2], 0.05)
-    world = preset.get("world", {})
+    world = preset.world
     return SegmentSpec(
         config=config, scene_id=scene_id, seed=seed, width=width, height=height, K=K,
         T_base_cam=look_at(eye, target), q=q, samples=samples,
-        denoise=bool(preset.get("render", {}).get("denoise", False)),
-        max_bounces=int(preset.get("render", {}).get("max_bounces", 12)),
-        world_color=tuple(float(c) for c in rng.uniform(*world.get("value", [0.0, 0.3]), 3) ** 2.2),
-        world_strength=uniform(rng, world.get("strength", [0.2, 1.5])),
+        denoise=preset.render.denoise,
+        max_bounces=preset.render.max_bounces,
+        world_color=tuple(float(c) for c in rng.uniform(*world.value, 3) ** 2.2),
+        world_strength=uniform(rng, world.strength),
         lights=lights(rng, preset, target),
         planes=backdrop(rng, preset, images or []),
         distractors=distractors(rng, preset, ee_path),

@@ -9,8 +9,6 @@ import numpy as np
 from syneepose.scene.marker import MarkerBoard
 from syneepose.stereo import SensorProfile
 
-SURFACE_KINDS = ("plain", "noise", "voronoi", "wave", "brick", "checker")
-
 
 @dataclass
 class Surface:

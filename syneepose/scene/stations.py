@@ -11,11 +11,10 @@ without `--marker` renders the marker-free twin.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from syneepose.errors import UserError
+from syneepose.preset import Preset
 from syneepose.scene.marker import MarkerBoard, board_from_preset, board_pose, facing
 from syneepose.scene.motion import MotionChecks
 from syneepose.scene.sample import rng_for, sample_segment
@@ -23,25 +22,6 @@ from syneepose.scene.spec import SegmentSpec
 from syneepose.transforms import inv_T, rotation_angle, transform_points
 
 MAX_CAMERAS, YAW_STEPS = 20, 72
-
-
-@dataclass(frozen=True)
-class StationRules:
-    max_tilt_deg: float = 40.0  # between the board's normal and the direction to the camera
-    pool: int = 300  # arm poses drawn per camera
-
-    @classmethod
-    def from_preset(cls, preset: dict) -> "StationRules":
-        section = preset.get("stations") or {}
-        unknown = set(section) - {"max_tilt_deg", "pool"}
-        if unknown:
-            raise UserError(f"preset {preset.get('name')}: stations: unknown keys {sorted(unknown)}; "
-                            "allowed: max_tilt_deg, pool")
-        rules = cls(float(section.get("max_tilt_deg", cls.max_tilt_deg)), int(section.get("pool", cls.pool)))
-        if not 0 < rules.max_tilt_deg < 90 or rules.pool < 1:
-            raise UserError(f"preset {preset.get('name')}: stations: max_tilt_deg must lie in (0, 90) and pool "
-                            f"be positive, got {rules.max_tilt_deg} and {rules.pool}")
-        return rules
 
 
 def spread_apart(R: np.ndarray, n: int, first: int) -> list[int]:
@@ -55,21 +35,20 @@ def spread_apart(R: np.ndarray, n: int, first: int) -> list[int]:
     return chosen
 
 
-def plan_stations(preset: dict, robot, checks: MotionChecks, scene_id: int, seed: int, n_frames: int,
+def plan_stations(preset: Preset, robot, checks: MotionChecks, scene_id: int, seed: int, n_frames: int,
                   width: int, height: int, samples: int, images: list[str] | None = None) -> SegmentSpec:
-    rules = StationRules.from_preset(preset)
+    rules = preset.stations
     board, mount = board_from_preset(preset)
     rng = rng_for(seed, robot.config, scene_id)
-    motion = preset["motion"]
+    motion = preset.motion
     lo, hi = np.asarray(robot.arm.limits, float).T
     home = np.asarray(robot.arm.home, float)
-    min_visible = float(preset["camera"].get("min_visible", 0.5))
-    margin = float(preset["camera"].get("margin", 0.02))
+    min_visible, margin = preset.camera.min_visible, preset.camera.margin
     radius = float(np.hypot(checks.hull_ee.vertices[:, 0], checks.hull_ee.vertices[:, 1]).max())
     cos_tilt = np.cos(np.deg2rad(rules.max_tilt_deg))
     for _ in range(MAX_CAMERAS):
-        pool = np.clip(home + rng.uniform(-1, 1, (rules.pool, len(home))) * float(motion["spread"]), lo, hi)
-        pool = pool[checks.above_floor(pool, float(motion.get("clearance", 0.1)))]
+        pool = np.clip(home + rng.uniform(-1, 1, (rules.pool, len(home))) * motion.spread, lo, hi)
+        pool = pool[checks.above_floor(pool, motion.clearance)]
         pool = pool[~checks.self_collision(pool)]
         if len(pool) < n_frames:
             continue
