@@ -15,13 +15,13 @@ tests/test_eval_metrics.py). `max_query=None` gives BOP's number exactly.
 from __future__ import annotations
 
 import hashlib
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import trimesh
 from eval.metrics import KDTree, model_tree
+from syneepose.bop import read_json
 from syneepose.errors import UserError
 
 MODELS_EVAL = "models_eval"
@@ -115,7 +115,7 @@ def load_eval_model(dataset: Path, obj_id: int, max_query: int | None = MAX_QUER
         if not path.is_file():
             raise UserError(f"{path}: missing; pose errors are computed on the data set's {MODELS_EVAL}/ (BOP); "
                             "rerun the render command that wrote the data set (it resumes and adds missing files)")
-    if str(obj_id) not in json.loads(info_path.read_text()):
+    if str(obj_id) not in read_json(info_path, "rebuild the models (python -m syneepose assets)"):
         raise UserError(f"{info_path}: no entry for obj_id {obj_id}; rebuild the models (python -m syneepose assets)")
     data = ply.read_bytes()
     vertices = np.asarray(trimesh.load(ply, file_type="ply", process=False).vertices, dtype=float) / 1000.0

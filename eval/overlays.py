@@ -10,7 +10,6 @@ needs no z-buffer).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import dataclass
 from functools import lru_cache
@@ -22,9 +21,9 @@ import numpy as np
 import trimesh
 
 from eval.bop_results import read_results
-from syneepose.cli import run_command
+from syneepose.cli import output_dir, run_command
 from eval.records import FrameErrors, read_errors
-from syneepose.bop import read_frame, split_name, write_atomic, write_png
+from syneepose.bop import read_frame, read_json, split_name, write_atomic, write_png
 from syneepose.errors import UserError
 from syneepose.show import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
 
@@ -152,7 +151,10 @@ def open_results(folder: Path, dataset: Path | None = None) -> ResultFolder:
     summary_path = folder / "summary.json"
     if not summary_path.is_file():
         raise UserError(f"{summary_path}: missing; give a folder written by python -m eval.run --out")
-    recorded = json.loads(summary_path.read_text())["dataset"]
+    recorded = read_json(summary_path, "run python -m eval.run into that folder again")
+    if not isinstance(recorded, dict) or not isinstance(recorded.get("dataset"), dict) or "path" not in recorded["dataset"]:
+        raise UserError(f"{summary_path}: not an eval.run summary (no dataset.path); pass --dataset DIR")
+    recorded = recorded["dataset"]
     root = Path(dataset or recorded["path"])
     if not (root / "models").is_dir():
         raise UserError(f"{summary_path} names the data set {root}, which has no models/ folder; "
@@ -171,6 +173,7 @@ def write_gif(path: Path, images: list[np.ndarray], fps: float = 4.0) -> None:
 def write_overlays(folder: Path, out: Path, scenes: list[int] | None = None, gif: bool = False,
                    fps: float = 4.0, dataset: Path | None = None) -> list[Path]:
     """`out/<scene>/<frame>.png` for every frame of the chosen scenes and, with `gif`, `out/<scene>.gif`."""
+    out = output_dir(out)
     results = open_results(folder, dataset)
     present = sorted({scene for scene, _ in results.errors})
     missing = sorted(set(scenes or ()) - set(present))

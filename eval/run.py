@@ -33,8 +33,8 @@ from eval.metrics import WORKSPACE_POINTS, add, adds, calibration_error, rotatio
 from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
-from syneepose.bop import (SceneMeta, read_frame, read_gt_poses, read_png, read_scene, scene_dirs, split_name,
-                          write_atomic)
+from syneepose.bop import (SceneMeta, read_frame, read_gt_poses, read_json, read_png, read_scene, scene_dirs,
+                          split_name, write_atomic)
 from syneepose.errors import UserError
 
 METHOD_OPTIONS = ("variant", "icp", "refine", "silhouette", "refit_growth", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
@@ -72,7 +72,12 @@ def build_method(name: str, given: dict):
 
 def _dataset_info(root: Path) -> dict:
     path = root / "dataset_info.json"
-    return json.loads(path.read_text()) if path.is_file() else {}
+    if not path.is_file():
+        return {}
+    info = read_json(path, "restore it, or render the data set again")
+    if not isinstance(info, dict):
+        raise UserError(f"{path}: not a data set description (a JSON object)")
+    return info
 
 
 def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list[Scene]:
@@ -86,6 +91,11 @@ def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list
             ids = [int(v) for v in scenes.split(",") if v.strip()]
         except ValueError:
             raise UserError(f"--scenes {scenes!r} must be comma-separated scene ids, e.g. 0,1,2") from None
+        if not ids:
+            raise UserError(f"--scenes {scenes!r} names no scene; give ids, e.g. 0,1,2, or leave it out for all")
+        twice = sorted({i for i in ids if ids.count(i) > 1})
+        if twice:
+            raise UserError(f"--scenes names {', '.join(map(str, twice))} twice; name each scene once")
         missing = [i for i in ids if i not in present]
         if missing:
             raise UserError(f"--scenes: scene {missing[0]} is not in {split_dir} (it has {len(present)} scenes)")
@@ -169,7 +179,7 @@ def run_scene(method, scene: Scene, depth_dir: str, model: EvalModel, bar,
               noise: MaskNoise | None = None) -> tuple[list, list]:
     """The method over one scene in frame order; returns its BOP results and its error rows."""
     method.start_scene(dataclasses.replace(scene.meta, T_cam_base=NO_POSE.copy()), scene.path)
-    cameras = json.loads((scene.path / "scene_camera.json").read_text())
+    cameras = read_json(scene.path / "scene_camera.json")
     T_gt, estimates, wall_s = [], [], []
     for im_id in scene.im_ids:
         obs, T_cam_ee = observation(scene, im_id, depth_dir, cameras, noise)
@@ -238,7 +248,9 @@ def _claim(out: Path, identity: dict) -> None:
     identity = json.loads(json.dumps(identity))  # as it reads back from run.json
     path = out / "run.json"
     if path.is_file():
-        before = json.loads(path.read_text())
+        before = read_json(path, "delete the --out folder or use another")
+        if not isinstance(before, dict):
+            raise UserError(f"{path}: not a run description (a JSON object); delete the --out folder or use another")
         changed = sorted(k for k in set(identity) | set(before) if before.get(k) != identity.get(k))
         if changed:
             raise UserError(f"--out {out} holds a run with other {', '.join(changed)} ({path}); "

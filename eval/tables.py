@@ -12,17 +12,16 @@ from __future__ import annotations
 import argparse
 import csv
 import io
-import json
 import sys
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from eval import reported
-from syneepose.cli import run_command
+from syneepose.cli import output_dir, run_command
 from eval.plots import accuracy_curves, convergence_plot, read_trials, targeting_plot
 from eval.records import read_errors
-from syneepose.bop import write_atomic
+from syneepose.bop import read_json, write_atomic
 from syneepose.errors import UserError
 
 NONE = "–"
@@ -60,13 +59,29 @@ def method_label(name: str, options: dict) -> str:
     return name
 
 
+SUMMARY_KEYS = ("method", "dataset", "average", "per_end_effector", "ms_per_frame")
+AVERAGE_KEYS = ("add@1cm", "adds@1cm", "add@2cm", "adds@2cm")
+
+
+def _summary(path: Path) -> dict:
+    """A run's summary.json with what the tables read; a broken or foreign one is named in one line."""
+    s = read_json(path, "run python -m eval.run into that folder again")
+    missing = [k for k in SUMMARY_KEYS if not isinstance(s, dict) or k not in s]
+    if not missing:
+        missing = [f"average.{k}" for k in AVERAGE_KEYS if not isinstance(s["average"], dict) or k not in s["average"]]
+    if missing:
+        raise UserError(f"{path}: not an eval.run summary (no {', '.join(missing)}); run python -m eval.run "
+                        "into that folder again")
+    return s
+
+
 def load_runs(folders: list[Path]) -> list[Run]:
     runs = []
     for folder in folders:
         path = Path(folder) / "summary.json"
         if not path.is_file():
             raise UserError(f"{path}: missing; give folders written by python -m eval.run --out")
-        runs.append(Run(Path(folder), json.loads(path.read_text())))
+        runs.append(Run(Path(folder), _summary(path)))
     for run in runs:
         s = run.summary
         method = method_label(run.options.get("name") or s["method"].upper(), run.options)
@@ -238,10 +253,9 @@ def write_tables(folders: list[Path], out: Path) -> list[Path]:
     Folders holding `targeting.json` (python -m eval.targeting) add the targeting table and plot."""
     aimed = [Path(f) for f in folders if (Path(f) / "targeting.json").is_file()]
     runs = load_runs([f for f in folders if Path(f) not in aimed])
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(out)
     tables = [table1(runs), ablation(runs), layers(runs), hyperparameters(runs), robot_pose(runs)]
-    aims = [json.loads((f / "targeting.json").read_text()) for f in aimed]
+    aims = [read_json(f / "targeting.json", "run python -m eval.targeting into that folder again") for f in aimed]
     if aims:
         tables.append(targeting(aims))
     written, sections = [], ["# Tables\n", "Measured rows: `python -m eval.run`; rows marked (reported) are the "

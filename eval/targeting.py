@@ -31,8 +31,8 @@ from eval.metrics import WORKSPACE_POINTS, calibration_error
 from eval.run import NO_POSE, Scene, _dataset_info, build_method, observation
 from eval.tables import method_label
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
-from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir, write_atomic
-from syneepose.cli import run_command
+from syneepose.bop import read_frame, read_json, read_scene, scene_dirs, split_dir, write_atomic
+from syneepose.cli import output_dir, run_command
 from syneepose.errors import UserError
 from syneepose.scene.marker import MarkerBoard
 
@@ -108,7 +108,7 @@ def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: 
             f = read_frame(marker_dir, i)
             boards[i] = (f.T_base_ee, detector.T_cam_board(f.rgb, f.K)[0])
         scene = Scene(scene_id, plain_dir, plain_meta, ids)
-        cameras = json.loads((plain_dir / "scene_camera.json").read_text())
+        cameras = read_json(plain_dir / "scene_camera.json")
         plain = {i: observation(scene, i, depth_dir, cameras, noise)[0] for i in ids}
         hidden = dataclasses.replace(plain_meta, T_cam_base=NO_POSE.copy())
         for n in views:
@@ -143,8 +143,7 @@ def summarise(trials: list[Trial]) -> dict:
 
 
 def write(out: Path, trials: list[Trial], options: dict) -> dict:
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(out)
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
     writer.writerow(FIELDS)

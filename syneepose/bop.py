@@ -75,8 +75,12 @@ def _image_paths(scene_dir: Path, im_id: int, robot: dict | None = None) -> dict
 
 def write_atomic(path: Path, data: bytes) -> None:
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except BaseException:  # a full disk or a kill mid-write: no temp file stays behind
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def write_png(path: Path, image: np.ndarray) -> None:

@@ -3,13 +3,12 @@ weights), read from its BOP results CSV and replayed frame by frame."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from eval.bop_results import BopResult, read_results
 from eval.methods import register
 from eval.methods.base import Estimate, Observation
-from syneepose.bop import SceneMeta
+from syneepose.bop import SceneMeta, read_json
 from syneepose.errors import UserError
 
 
@@ -34,7 +33,7 @@ class BopCsv:
             if not models_info.is_file():
                 raise UserError(f"{models_info}: missing; the data set needs its models/ folder")
             scene_ids = [int(p.name) for p in scene_dir.parent.iterdir() if p.name.isdigit()]
-            self._by_key = read_results(self.results, (int(k) for k in json.loads(models_info.read_text())),
+            self._by_key = read_results(self.results, (int(k) for k in read_json(models_info, "copy the models again")),
                                         scene_ids)
         self._scene_id, self._obj_id = int(scene_dir.name), meta.obj_id
 

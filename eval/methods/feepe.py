@@ -33,6 +33,10 @@ class Feepe:
                  n_templates: int | None = None, k_r: int = 5, k_f: int = 8, backbone_weights: str | None = None,
                  templates_dir: str | None = None, icp: bool = False, bow_assignment: str = "foundpose",
                  refine: str = "none", silhouette: str = "ee", refit_growth: float = 0.0):
+        for flag, value, low in (("--k-r", k_r, 1), ("--k-f", k_f, 0), ("--n-templates", n_templates, 1),
+                                 ("--layer", layer, 0)):
+            if value is not None and not low <= value <= 10000:
+                raise UserError(f"{flag} {value}: must lie in {low}..10000")
         if bow_assignment not in ("foundpose", "gaussian"):
             raise UserError(f"--bow-assignment {bow_assignment!r}: foundpose (FoundPose's) or gaussian (ours)")
         self.opts = FeepeOptions(variant=variant, k_f=k_f, icp=icp, refine=refine, silhouette=silhouette,
