@@ -173,12 +173,12 @@ def write_gif(path: Path, images: list[np.ndarray], fps: float = 4.0) -> None:
 def write_overlays(folder: Path, out: Path, scenes: list[int] | None = None, gif: bool = False,
                    fps: float = 4.0, dataset: Path | None = None) -> list[Path]:
     """`out/<scene>/<frame>.png` for every frame of the chosen scenes and, with `gif`, `out/<scene>.gif`."""
-    out = output_dir(out)
     results = open_results(folder, dataset)
     present = sorted({scene for scene, _ in results.errors})
     missing = sorted(set(scenes or ()) - set(present))
     if missing:
         raise UserError(f"--scenes: {folder} has no scene {missing[0]} (it has {present})")
+    out = output_dir(out)
     written = []
     for scene_id in scenes or present:
         scene_out = Path(out) / f"{scene_id:06d}"

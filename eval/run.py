@@ -33,8 +33,8 @@ from eval.metrics import WORKSPACE_POINTS, add, adds, calibration_error, rotatio
 from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
-from syneepose.bop import (SceneMeta, read_frame, read_gt_poses, read_json, read_png, read_scene, scene_dirs,
-                          split_name, write_atomic)
+from syneepose.bop import (SceneMeta, complete_frames, read_frame, read_gt_poses, read_json, read_png, read_scene,
+                          scene_dirs, split_name, write_atomic)
 from syneepose.errors import UserError
 
 METHOD_OPTIONS = ("variant", "icp", "refine", "silhouette", "refit_growth", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
@@ -81,6 +81,8 @@ def _dataset_info(root: Path) -> dict:
 
 
 def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list[Scene]:
+    if not split_dir.parent.is_dir():
+        raise UserError(f"--dataset {split_dir.parent}: no such folder; give the root of a BOP data set")
     if not split_dir.is_dir():
         raise UserError(f"--dataset {split_dir.parent}: no {split_dir.name}/ folder; give the root of a BOP data "
                         "set (python -m syneepose render --out DIR)")
@@ -297,6 +299,8 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     if noise is not None:  # only when on: runs on exact masks keep the identity they had before the option
         identity["mask_noise"] = noise.describe()
     models = {obj_id: load_eval_model(dataset, obj_id) for obj_id in sorted({s.meta.obj_id for s in selected})}
+    if hasattr(method, "check"):
+        method.check({i: complete_frames(p) for i, p in scene_dirs(dataset / split).items()}, dataset / split)
     _claim(out, identity)
     fingerprints = {s.scene_id: scene_fingerprint(s.path, s.im_ids, depth_dir, models[s.meta.obj_id].sha256,
                                                   _method_inputs(method, s), QUERY_RULE) for s in selected}

@@ -58,8 +58,7 @@ def _render(args) -> None:
                                        "resolution": _resolution(args.resolution)})
     configs = load_catalog().parse_configs(args.robots)
     width, height = preset.resolution
-    out = Path(args.out)
-    _writable(out)
+    shard = J.parse_shard(args.shard)
     backgrounds = ()
     if args.backgrounds:
         folder = Path(args.backgrounds)
@@ -70,11 +69,13 @@ def _render(args) -> None:
         from syneepose.stereo import load_profile
 
         load_profile(args.sensor)  # a bad profile is one error line here, not one per worker
+    out = Path(args.out)
+    _writable(out)  # after every check of the flags: a mistake writes nothing
     assets = paths.assets_dir()
     build_assets(assets, configs, log=lambda *_: None)
     jobs = J.make_jobs(args.preset, preset, out, configs, args.seed, preset.segments, preset.frames,
                        width, height, preset.samples, assets, backgrounds,
-                       J.parse_shard(args.shard), args.device, args.marker, args.depth, args.sensor)
+                       shard, args.device, args.marker, args.depth, args.sensor)
     settings = J.job_settings(jobs[0]) if jobs else None
     if settings is not None:
         stale = resume.check_resume(out, jobs, settings, args.overwrite)

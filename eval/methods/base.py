@@ -44,6 +44,10 @@ class Method(Protocol):
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
         """A new video segment begins: reset any memory."""
 
+    def check(self, scenes: dict[int, list[int]], split_dir: Path) -> None:
+        """Optional: validate what the method reads against the data set (scene id -> frame ids) before the
+        run writes anything; raise UserError naming the file and the problem."""
+
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
         """Optional: the files or folders the method reads for this scene besides its frames (templates,
         models, a results file), so that a rerun scores the scene again when they change."""

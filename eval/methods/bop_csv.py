@@ -25,17 +25,22 @@ class BopCsv:
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
         return [self.results]
 
+    def check(self, scenes: dict[int, list[int]], split_dir: Path) -> None:
+        """Every row must name an object, a scene and a frame of the data set: a row that cannot be placed is a
+        mistake in the file (another split, another data set), not a frame to skip."""
+        models_info = Path(split_dir).parent / "models" / "models_info.json"
+        if not models_info.is_file():
+            raise UserError(f"{models_info}: missing; the data set needs its models/ folder")
+        obj_ids = [int(k) for k in read_json(models_info, "copy the models again")]
+        self._by_key = read_results(self.results, obj_ids, list(scenes))
+        frames = {s: set(ids) for s, ids in scenes.items()}
+        stray = sorted((s, i) for s, i, _ in self._by_key if i not in frames[s])
+        if stray:
+            raise UserError(f"{self.results}: {len(stray)} row(s) name frames the data set lacks (first: scene "
+                            f"{stray[0][0]} frame {stray[0][1]}); results of another data set or split?")
+
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
-        """The first scene also validates the CSV against the data set (root/split/scene)."""
-        scene_dir = Path(scene_dir)
-        if self._by_key is None:
-            models_info = scene_dir.parents[1] / "models" / "models_info.json"
-            if not models_info.is_file():
-                raise UserError(f"{models_info}: missing; the data set needs its models/ folder")
-            scene_ids = [int(p.name) for p in scene_dir.parent.iterdir() if p.name.isdigit()]
-            self._by_key = read_results(self.results, (int(k) for k in read_json(models_info, "copy the models again")),
-                                        scene_ids)
-        self._scene_id, self._obj_id = int(scene_dir.name), meta.obj_id
+        self._scene_id, self._obj_id = int(Path(scene_dir).name), meta.obj_id
 
     def estimate(self, obs: Observation) -> Estimate:
         found = self._by_key.get((self._scene_id, obs.im_id, self._obj_id))
