@@ -91,20 +91,21 @@ def _render(args) -> None:
 
     try:
         _execute(args, J.run_job, todo, report, bar)
-    finally:  # the root files list what exists, also after a failed or interrupted run
+    finally:  # the root files list what exists, also after a failed or interrupted run; no temp file stays
+        resume.remove_leftovers(out, jobs)
         J.write_root_files(out, preset, width, height)
     print(f"render: {len(jobs)} segments in {out / J.SPLIT}")
 
 
 def _execute(args, fn, jobs, report, bar) -> None:
     """Run the jobs; on failure the progress bar is wiped so the error is the last line."""
-    from syneepose import jobs as J
+    from syneepose.executors import run_local, run_ray
 
     try:
         if args.executor == "ray":
-            J.run_ray(fn, jobs, args.ray_address, report)
+            run_ray(fn, jobs, args.ray_address, report)
         else:
-            J.run_local(fn, jobs, args.workers, report)
+            run_local(fn, jobs, args.workers, report)
     except BaseException:
         bar.leave = False
         raise

@@ -4,11 +4,16 @@ exit 1; Ctrl-C is exit 130."""
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 from typing import Callable
 
 from syneepose.errors import UserError
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
 
 
 def output_dir(path: Path, flag: str = "--out") -> Path:
@@ -26,6 +31,7 @@ def output_dir(path: Path, flag: str = "--out") -> Path:
 def run_command(action: Callable[[], str | None]) -> int:
     """Runs `action` and prints the report it returns, if any; exit 0, 2 (UserError), 1 (the system refused a
     file operation) or 130 (Ctrl-C)."""
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # a scheduler's stop ends the run as Ctrl-C does
     try:
         report = action()
     except UserError as exc:
@@ -39,6 +45,8 @@ def run_command(action: Callable[[], str | None]) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     if report:
         print(report)
     return 0

@@ -10,11 +10,9 @@ import hashlib
 import json
 import os
 import shutil
-from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from importlib.metadata import version
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -237,27 +235,3 @@ def write_root_files(out: Path, preset: Preset, width: int, height: int) -> None
     from syneepose.scene.sample import nominal_intrinsics
 
     bop.write_root_files(out, nominal_intrinsics(preset, width, height), width, height)
-
-
-def run_local(fn, jobs: list, workers: int, progress) -> None:
-    """Each job in a fresh spawned process (bpy leaks memory over long loops)."""
-    ctx = get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1) as pool:
-        futures = [(job, pool.submit(fn, job)) for job in jobs]
-        for job, future in futures:
-            future.result()
-            progress(job)
-
-
-def run_ray(fn, jobs: list, address: str | None, progress) -> None:
-    """Jobs as Ray tasks on an existing cluster (`address`) or a local instance."""
-    import ray
-
-    ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-    remote = ray.remote(max_retries=2, max_calls=1)(fn)  # a fresh worker process per job, as locally
-    pending = {remote.remote(job): job for job in jobs}
-    while pending:
-        done, _ = ray.wait(list(pending), num_returns=1)
-        job = pending.pop(done[0])
-        ray.get(done[0])
-        progress(job)

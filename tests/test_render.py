@@ -169,6 +169,63 @@ def test_killed_render_resumes_to_the_same_result(rendered, tmp_path):
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]
 
 
+def _group(pgid: int) -> list[int]:
+    """Live processes of a process group (the render and every worker it spawned)."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        try:
+            stat = (d / "stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if stat[0] != "Z" and int(stat[2]) == pgid:
+            pids.append(int(d.name))
+    return pids
+
+
+@pytest.fixture(scope="module")
+def four_frames(tmp_path_factory, assets):
+    out = tmp_path_factory.mktemp("four")
+    proc = _render(out, "--frames", "4", "--robots", CONFIGS[1], "--workers", "2")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return out
+
+
+@pytest.mark.parametrize("sig,whom", [(signal.SIGINT, "group"), (signal.SIGTERM, "main"), (signal.SIGKILL, "main")],
+                         ids=["ctrl-c", "sigterm", "kill-9-main"])
+def test_a_stopped_render_stops_every_worker_and_resumes(four_frames, tmp_path, sig, whom):
+    """Ctrl-C (the terminal signals the whole group), a scheduler's SIGTERM to the main process, or the main
+    process killed outright: within 5 s no worker renders on, only whole frames stay, and a rerun ends
+    with the files of an uninterrupted run."""
+    out = tmp_path / "stopped"
+    cmd = [sys.executable, "-m", "syneepose", "render", "--preset", "mini", "--out", str(out), *TINY,
+           "--frames", "4", "--robots", CONFIGS[1], "--workers", "2"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and not any(json.loads(p.read_text() or "{}")
+                                              for p in out.glob("test/*/scene_gt.json")):
+        time.sleep(0.05)
+    assert len(_group(proc.pid)) >= 2  # the render and its worker
+    t0 = time.time()
+    os.killpg(proc.pid, sig) if whom == "group" else os.kill(proc.pid, sig)
+    proc.wait(timeout=5)
+    while _group(proc.pid) and time.time() - t0 < 5:
+        time.sleep(0.05)
+    assert not _group(proc.pid), "a worker outlived the render"
+    if sig != signal.SIGKILL:
+        assert proc.returncode == 130 and proc.stderr.read().decode().strip().endswith("interrupted")
+        assert not [p for p in out.rglob("*") if ".tmp" in p.name or p.name.startswith("tmp")]
+    [scene] = list(split_dir(out).iterdir())
+    assert len(json.loads((scene / "scene_gt.json").read_text())) < 4
+    assert subprocess.run(cmd, capture_output=True).returncode == 0
+    ref = split_dir(four_frames) / scene.name
+    for name in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_gt_coco.json", "scene_robot.json"):
+        assert (scene / name).read_text() == (ref / name).read_text(), name
+    for folder in ("depth", "mask", "mask_visib", "robot_mask_visib"):
+        for path in sorted((ref / folder).iterdir()):
+            assert (scene / folder / path.name).read_bytes() == path.read_bytes(), path
+    assert not [p for p in out.rglob("*") if ".tmp" in p.name or p.name.startswith("tmp")]
+
+
 @pytest.mark.parametrize("args,word", [
     (["--robots", "ur5e+claw"], "claw"),
     (["--preset", "nosuch"], "nosuch"),

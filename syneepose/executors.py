@@ -1,0 +1,100 @@
+"""Where jobs run: each in a fresh spawned process here (bpy leaks over long loops), or as Ray tasks.
+
+A stopped run stops everything: on Ctrl-C, SIGTERM or a failed job the main process kills its workers
+(SIGTERM, then SIGKILL after `GRACE_S`), and a worker whose parent dies is killed by the kernel
+(PR_SET_PDEATHSIG on Linux), so no render outlives the command. Frames are written atomically, so what
+stays is whole frames; the next run removes the temp files and resumes (resume.py).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import pickle
+import signal
+import sys
+from multiprocessing import get_context
+from multiprocessing.connection import wait
+
+GRACE_S = 2.0  # a worker asked to stop gets this long before it is killed
+
+
+def run_local(fn, jobs: list, workers: int, progress) -> None:
+    """At most `workers` jobs at once, each `fn(job)` in its own process; `progress(job)` as each ends.
+    The first failure stops the others and is raised here."""
+    ctx = get_context("spawn")
+    pending, running = list(jobs), {}  # receiving end of a job's pipe -> (process, job)
+    try:
+        while pending or running:
+            while pending and len(running) < workers:
+                job = pending.pop(0)
+                receive, send = ctx.Pipe(duplex=False)
+                proc = ctx.Process(target=_work, args=(fn, job, send, os.getpid()))
+                proc.start()
+                send.close()
+                running[receive] = (proc, job)
+            for receive in wait(list(running)):
+                proc, job = running.pop(receive)
+                try:
+                    failed, value = receive.recv()
+                except EOFError:  # the process died without a word: killed, or out of memory
+                    proc.join()
+                    raise RuntimeError(f"the worker of {job} died (exit code {proc.exitcode})") from None
+                proc.join()
+                if failed:
+                    raise value
+                progress(job)
+    finally:
+        for proc, _ in running.values():
+            stop(proc)
+
+
+def stop(proc) -> None:
+    proc.terminate()
+    proc.join(GRACE_S)
+    if proc.is_alive():
+        proc.kill()
+        proc.join()
+
+
+def _work(fn, job, send, parent: int) -> None:
+    """Worker entry: dies with its parent, leaves Ctrl-C to it (the terminal sends it to the whole group),
+    and sends back (failed, result or exception)."""
+    _die_with_parent(parent)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        result = (False, fn(job))
+    except BaseException as exc:  # it crosses the process boundary and is raised there
+        result = (True, exc)
+    try:
+        send.send(result)
+    except (pickle.PicklingError, TypeError, AttributeError):
+        send.send((True, RuntimeError(f"{type(result[1]).__name__}: {result[1]}")))
+    send.close()
+
+
+def _die_with_parent(parent: int) -> None:
+    if sys.platform.startswith("linux"):
+        PR_SET_PDEATHSIG = 1
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:  # the parent died before the call took effect
+        os._exit(1)
+
+
+def run_ray(fn, jobs: list, address: str | None, progress) -> None:
+    """Jobs as Ray tasks on an existing cluster (`address`) or a local instance; an interrupted run cancels
+    every task it started."""
+    import ray
+
+    ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    remote = ray.remote(max_retries=2, max_calls=1)(fn)  # a fresh worker process per job, as locally
+    pending = {remote.remote(job): job for job in jobs}
+    try:
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            job = pending.pop(done[0])
+            ray.get(done[0])
+            progress(job)
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)
