@@ -129,6 +129,7 @@ def _templates(args) -> None:
     from syneepose import paths
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
+    from syneepose.templates import check_resume
 
     _check_run(args)
     catalog = load_catalog()
@@ -141,6 +142,8 @@ def _templates(args) -> None:
     build_assets(assets, [f"panda+{n}" for n in names], log=lambda *_: None)
     jobs = [J.TemplateJob(n, str(out), settings.views, settings.inplane, settings.resolution, settings.samples,
                           str(assets), args.device) for n in names]
+    for job in jobs:
+        check_resume(job.folder, job.samples)
     done_before = {j: J.templates_done(j) for j in jobs}
     bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="template",
                desc="templates")

@@ -7,14 +7,13 @@ reads a template set back. A set is one folder per end-effector with BOP-style f
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from syneepose.bop import read_png
+from syneepose.bop import read_json, read_png
 from syneepose.errors import UserError
 from syneepose.scene.sample import look_at
 from syneepose.transforms import inv_T, make_T
@@ -92,7 +91,20 @@ def read_index(folder: Path) -> dict:
     path = Path(folder) / "templates.json"
     if not path.is_file():
         raise UserError(f"no template set at {folder}: render it with `python -m syneepose templates`")
-    return json.loads(path.read_text())
+    index = read_json(path, "delete the template set folder and render it again")
+    if not isinstance(index, dict):
+        raise UserError(f"{path}: not a template index (an object of templates); delete the folder and render it again")
+    return index
+
+
+def check_resume(folder: Path, samples: int) -> None:
+    """A set is rendered with one sample count: a rerun that asks for another would mix two noise levels."""
+    if not (Path(folder) / "templates.json").is_file():
+        return
+    other = sorted({r["samples"] for r in read_index(folder).values() if r.get("samples", samples) != samples})
+    if other:
+        raise UserError(f"{folder} was rendered with --samples {other[0]}, not {samples}; rerun with --samples "
+                        f"{other[0]} to resume, or delete the folder to render it again")
 
 
 def read_template(folder: Path, template_id: int, index: dict | None = None) -> Template:

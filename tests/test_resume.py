@@ -118,3 +118,15 @@ def test_a_broken_json_file_is_named_in_one_line(copy, name, content):
     path = copy / name if name == "dataset_info.json" else _scene(copy) / name
     path.write_text(content)
     _one_line(_render(copy), path.name)
+
+
+def test_a_template_set_resumes_only_with_its_sample_count(tmp_path, assets):
+    def templates(samples):
+        return subprocess.run([sys.executable, "-m", "syneepose", "templates", "--out", str(tmp_path), "--ee",
+                               "robotiq_2f85", "--views", "2", "--inplane", "1", "--resolution", "32", "--samples",
+                               str(samples)], capture_output=True, text=True)
+
+    assert templates(1).returncode == 0
+    before = _files(tmp_path)
+    _one_line(templates(2), "--samples 1, not 2")
+    assert _files(tmp_path) == before

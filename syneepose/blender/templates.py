@@ -23,7 +23,7 @@ def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane:
     """Render the templates not yet on disk; returns how many were rendered."""
     folder = Path(folder)
     index_path = folder / "templates.json"
-    index = json.loads(index_path.read_text()) if index_path.is_file() else {}
+    index = T.read_index(folder) if index_path.is_file() else {}
     model = read_urdf(part_urdf)
     canonical = dict(ee.canonical)
     mesh = rigid_mesh(model, Path(part_urdf).parent, canonical)
@@ -51,7 +51,8 @@ def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane:
         write_png(folder / "depth" / name, np.round(depth * 1000.0 / DEPTH_SCALE).astype(np.uint16))
         write_png(folder / "mask" / name, mask.astype(np.uint8) * 255)
         index[str(i)] = {"view": view, "inplane": inplane, "cam_K": K.ravel().tolist(),
-                         "T_cam_model": T_cam_model.tolist(), "depth_scale": DEPTH_SCALE, "obj_id": ee.obj_id}
+                         "T_cam_model": T_cam_model.tolist(), "depth_scale": DEPTH_SCALE, "obj_id": ee.obj_id,
+                         "samples": samples}
         write_atomic(index_path, json.dumps(index, indent=2, sort_keys=True).encode())
         if progress is not None:
             progress(1)
