@@ -226,8 +226,12 @@ def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: li
     for name, source in (("models", paths.models_dir(assets)), ("models_eval", paths.models_eval_dir(assets))):
         if not (out / name).is_dir() and (name == "models" or source.is_dir()):
             staging = out / f".{name}.tmp{os.getpid()}"
-            shutil.copytree(source, staging, ignore=shutil.ignore_patterns(".*"))
-            os.replace(staging, out / name)
+            try:
+                shutil.copytree(source, staging, ignore=shutil.ignore_patterns(".*"))
+                os.replace(staging, out / name)
+            except (OSError, shutil.Error) as exc:  # a full disk: no half-copied folder stays
+                shutil.rmtree(staging, ignore_errors=True)
+                raise UserError(f"cannot copy {source} to {out / name}: {exc}; free space and run again") from None
 
 
 def write_root_files(out: Path, preset: Preset, width: int, height: int) -> None:

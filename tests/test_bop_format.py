@@ -3,6 +3,7 @@ scene_gt_coco.json that pycocotools decodes back to the visible masks, the root 
 targets) over every scene, the same whatever the order of the runs that wrote them; the `test` split."""
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -184,6 +185,26 @@ def test_dataset_info_names_the_test_split_and_copies_models_eval_when_built(tmp
     jobs.write_dataset_info(out, "mini", [_job(out)], ["ur5e+robotiq_2f85"], assets)
     assert (out / "models_eval" / "obj_000001.ply").read_text() == "eval ply"
     assert not [p for p in out.iterdir() if ".tmp" in p.name]
+
+
+def test_a_full_disk_while_copying_the_models_leaves_no_half_folder(tmp_path, monkeypatch):
+    import errno
+    import shutil
+
+    assets, out = tmp_path / "assets", tmp_path / "out"
+    (assets / "models").mkdir(parents=True)
+    (assets / "models" / "obj_000001.ply").write_text("ply")
+    out.mkdir()
+
+    def full(src, dst, **kw):
+        Path(dst).mkdir()
+        (Path(dst) / "obj_000001.ply").write_text("pl")
+        raise OSError(errno.ENOSPC, "No space left on device", str(dst))
+
+    monkeypatch.setattr(shutil, "copytree", full)
+    with pytest.raises(UserError, match="No space left on device.*free space"):
+        jobs.write_dataset_info(out, "mini", [_job(out)], ["ur5e+robotiq_2f85"], assets)
+    assert sorted(p.name for p in out.iterdir()) == ["dataset_info.json"]
 
 
 def test_resuming_a_train_data_set_is_refused(tmp_path):

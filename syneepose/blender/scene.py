@@ -8,6 +8,7 @@ object index come from the pixel-centre ray, so they agree with each other and w
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -293,6 +294,10 @@ def _rgba(grey: np.ndarray) -> np.ndarray:
     return out.ravel()
 
 
+RENDER_PASSES = (f"{MAIN}.Combined", f"{MAIN}.Depth", f"{MAIN}.Object Index", f"{EE_ONLY}.Depth",
+                 f"{EE_ONLY}.Object Index")
+
+
 def render(workdir: Path | None = None) -> dict[str, np.ndarray]:
     """Render the current frame; returns linear RGB and the passes of both layers (H, W)."""
     fd, path = tempfile.mkstemp(suffix=".exr", dir=workdir)
@@ -300,9 +305,17 @@ def render(workdir: Path | None = None) -> dict[str, np.ndarray]:
     try:
         bpy.context.scene.render.filepath = path
         bpy.ops.render.render(write_still=True)
-        passes = read_passes(Path(path))
+        try:
+            passes = read_passes(Path(path))
+        except (OSError, RuntimeError, ValueError):  # OpenEXR on a file cut short
+            passes = {}
     finally:
         os.unlink(path)
+    missing = [k for k in RENDER_PASSES if k not in passes]
+    if missing:
+        free_mb = shutil.disk_usage(Path(path).parent).free / 2**20
+        raise UserError(f"Blender's render came back without {', '.join(missing)} ({free_mb:.0f} MB free in "
+                        f"{Path(path).parent}: a full disk cuts its EXR short); free space and run again")
     return {
         "rgb_linear": passes[f"{MAIN}.Combined"][..., :3],
         "depth": passes[f"{MAIN}.Depth"],
