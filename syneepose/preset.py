@@ -5,100 +5,79 @@ types, inverted or empty ranges and sizes no machine renders are refused with on
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field
 
 from syneepose import paths
 from syneepose.errors import UserError
+from syneepose.settings import Section, int_range, number_range, validate
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 SURFACE_KINDS = ("plain", "noise", "voronoi", "wave", "brick", "checker")  # Blender texture nodes (blender/scene.py)
+EXAMPLE = "scenes/mini.yaml"
 MAX_SIDE_PX = 8192  # a render side beyond this is a typo, not a data set (100000x100000 would never finish)
 
 
-def _ordered(r: tuple) -> tuple:
-    if r[0] > r[1]:
-        raise ValueError(f"range [{r[0]}, {r[1]}] is inverted; give [low, high]")
-    return r
-
-
-def _range(low: float | None = None, high: float | None = None, exclusive_low: bool = False):
-    """A [low, high] pair of numbers, each within the given bounds."""
-    bound = Field(gt=low) if exclusive_low else Field(ge=low) if low is not None else Field()
-    item = Annotated[float, bound, Field(le=high)] if high is not None else Annotated[float, bound]
-    return Annotated[tuple[item, item], AfterValidator(_ordered)]
-
-
-def _int_range(low: int, high: int):
-    item = Annotated[int, Field(ge=low, le=high)]
-    return Annotated[tuple[item, item], AfterValidator(_ordered)]
-
-
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
-
-
-class Render(_Section):
+class Render(Section):
     denoise: bool = False
     max_bounces: int = Field(12, ge=0, le=1024)
 
 
-class Camera(_Section):
-    hfov_deg: _range(1.0, 179.0)
+class Camera(Section):
+    hfov_deg: number_range(1.0, 179.0)
     principal_jitter: float = Field(0.0, ge=0.0, le=0.5)  # fraction of the image size
-    distance: _range(0.0, exclusive_low=True)  # metres from the mean end-effector position
-    azimuth_deg: _range(-360.0, 360.0) = (-180.0, 180.0)
-    elevation_deg: _range(-90.0, 90.0) = (5.0, 60.0)
+    distance: number_range(0.0, exclusive_low=True)  # metres from the mean end-effector position
+    azimuth_deg: number_range(-360.0, 360.0) = (-180.0, 180.0)
+    elevation_deg: number_range(-90.0, 90.0) = (5.0, 60.0)
     min_visible: float = Field(0.5, ge=0.0, le=1.0)  # fraction of end-effector points unoccluded, every frame
     margin: float = Field(0.02, ge=0.0, lt=0.5)  # fraction of the image size kept from the border
 
 
-class Motion(_Section):
+class Motion(Section):
     waypoints: int = Field(ge=1, le=1000)
     spread: float = Field(ge=0.0)
     clearance: float = Field(0.1, ge=0.0)
 
 
-class Lights(_Section):
-    count: _int_range(0, 64)
+class Lights(Section):
+    count: int_range(0, 64)
     kinds: tuple[Literal["AREA", "POINT", "SUN"], ...] = Field(("AREA", "POINT", "SUN"), min_length=1)
-    kelvin: _range(1000.0, 40000.0) = (2700.0, 7500.0)
-    power_w: _range(0.0) = (40.0, 300.0)
-    sun_strength: _range(0.0) = (0.5, 3.0)
-    elevation_deg: _range(-90.0, 90.0) = (20.0, 80.0)
-    distance: _range(0.0, exclusive_low=True) = (1.5, 4.0)
+    kelvin: number_range(1000.0, 40000.0) = (2700.0, 7500.0)
+    power_w: number_range(0.0) = (40.0, 300.0)
+    sun_strength: number_range(0.0) = (0.5, 3.0)
+    elevation_deg: number_range(-90.0, 90.0) = (20.0, 80.0)
+    distance: number_range(0.0, exclusive_low=True) = (1.5, 4.0)
 
 
-class World(_Section):
-    value: _range(0.0, 1.0) = (0.0, 0.3)
-    strength: _range(0.0) = (0.2, 1.5)
+class World(Section):
+    value: number_range(0.0, 1.0) = (0.0, 0.3)
+    strength: number_range(0.0) = (0.2, 1.5)
 
 
-class Backdrop(_Section):
+class Backdrop(Section):
     kinds: tuple[Literal[SURFACE_KINDS], ...] = Field(SURFACE_KINDS, min_length=1)
-    value: _range(0.0, 1.0) = (0.05, 0.8)
-    scale: _range(0.0, exclusive_low=True) = (1.0, 20.0)
-    walls: _int_range(0, 4) = (0, 3)
-    wall_distance: _range(0.0, exclusive_low=True) = (1.5, 3.0)
+    value: number_range(0.0, 1.0) = (0.05, 0.8)
+    scale: number_range(0.0, exclusive_low=True) = (1.0, 20.0)
+    walls: int_range(0, 4) = (0, 3)
+    wall_distance: number_range(0.0, exclusive_low=True) = (1.5, 3.0)
     extent: float = Field(8.0, gt=0.0)
 
 
-class Distractors(_Section):
-    count: _int_range(0, 64) = (0, 0)
-    size: _range(0.0, exclusive_low=True) = (0.05, 0.3)
+class Distractors(Section):
+    count: int_range(0, 64) = (0, 0)
+    size: number_range(0.0, exclusive_low=True) = (0.05, 0.3)
 
 
-class Templates(_Section):
+class Templates(Section):
     views: int = Field(20, ge=1, le=10000)
     inplane: int = Field(12, ge=1, le=360)
     resolution: int = Field(128, ge=8, le=4096)
     samples: int = Field(8, ge=1, le=65536)
 
 
-class Marker(_Section):
+class Marker(Section):
     """A ChArUco board bolted to the end-effector (scene/marker.py); its mount: clearance and height (m)."""
     dictionary: str = "DICT_4X4_50"
     squares: tuple[Annotated[int, Field(ge=2, le=100)], Annotated[int, Field(ge=2, le=100)]] = (4, 5)
@@ -109,13 +88,13 @@ class Marker(_Section):
     height: float | None = Field(None, ge=0.0)
 
 
-class Stations(_Section):
+class Stations(Section):
     """Calibration stations (scene/stations.py) instead of a trajectory."""
     max_tilt_deg: float = Field(40.0, gt=0.0, lt=90.0)  # between the board's normal and the camera direction
     pool: int = Field(300, ge=1, le=100000)  # arm poses drawn per camera
 
 
-class Preset(_Section):
+class Preset(Section):
     name: str
     segments: int = Field(ge=1, le=100000)  # per configuration
     frames: int = Field(ge=1, le=100000)  # per segment
@@ -148,41 +127,11 @@ def load_preset(name_or_path: str, overrides: dict | None = None) -> Preset:
 
 
 def parse_preset(content: dict, source: str = "preset", flags: dict | None = None) -> Preset:
-    return _validate(Preset, content, source, flags or {})
+    return validate(Preset, content, source, flags or {}, EXAMPLE)
 
 
 def templates_with(preset: Preset, overrides: dict) -> Templates:
     """The preset's template settings with the command line's (None where not given), validated."""
     given = {k: v for k, v in overrides.items() if v is not None}
-    return _validate(Templates, {**preset.templates.model_dump(), **given}, f"preset {preset.name}: templates", given)
-
-
-def _validate(model: type[_Section], content: dict, source: str, flags: dict):
-    try:
-        text = json.dumps(content)  # JSON mode: YAML lists stand for pairs, and nothing else is coerced
-    except (TypeError, ValueError) as exc:
-        raise UserError(f"{source}: {exc}; a preset holds numbers, strings, booleans, lists and mappings") from None
-    try:
-        return model.model_validate_json(text)
-    except ValidationError as exc:
-        raise UserError(_first_error(exc, source, flags)) from None
-
-
-def _first_error(exc: ValidationError, source: str, flags: dict) -> str:
-    """One line: the key as a dotted path (or the command-line flag that set it), its value, what is allowed."""
-    error = exc.errors()[0]
-    loc = [str(p) for p in error["loc"] if not str(p).startswith(("function-after", "tuple"))]
-    key = ".".join(loc)
-    more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
-    if loc and loc[0] in flags:
-        return f"--{loc[0]} {flags[loc[0]]!r}: {_lower(error['msg'])}{more}"
-    if error["type"] == "extra_forbidden":
-        return f"{source}: unknown key {key!r}{more}; see scenes/mini.yaml for the keys a preset holds"
-    if error["type"] == "missing":
-        return f"{source}: missing key {key!r}{more}; see scenes/mini.yaml"
-    value = error.get("input")
-    return f"{source}: {key} = {json.dumps(value)}: {_lower(error['msg'])}{more}"
-
-
-def _lower(msg: str) -> str:
-    return msg[:1].lower() + msg[1:]
+    return validate(Templates, {**preset.templates.model_dump(), **given}, f"preset {preset.name}: templates", given,
+                    EXAMPLE)

@@ -15,8 +15,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from pydantic import Field, field_validator
+
 from syneepose.errors import UserError
 from syneepose.paths import named_yaml
+from syneepose.settings import Section, number_range, validate
 from syneepose.transforms import make_T
 
 SENSORS_DIR = Path(__file__).resolve().parents[1] / "scenes" / "sensors"
@@ -55,16 +58,52 @@ class SensorProfile:
         return depth**2 * disparity_noise / (self.ir_K(width, height)[0, 0] * self.baseline)
 
 
+class _Projector(Section):
+    offset: float  # metres along +x from the left imager
+    hfov_deg: float = Field(gt=0.0, lt=180.0)
+    dots_per_ir_pixel: float = Field(gt=0.0, le=10.0)
+    power: float = Field(ge=0.0)  # W
+
+
+class _Matcher(Section):  # OpenCV StereoSGBM and our sub-pixel refinement
+    block: int = Field(ge=1, le=31)
+    uniqueness: int = Field(ge=0, le=100)
+    speckle_window: int = Field(ge=0)
+    speckle_range: int = Field(ge=0)
+    lr_max_diff: int = Field(ge=-1)
+    refine_window: int = Field(11, ge=1, le=101)
+    refine_iterations: int = Field(5, ge=0, le=100)
+
+    @field_validator("block")
+    @classmethod
+    def _odd(cls, block: int) -> int:
+        if block % 2 == 0:
+            raise ValueError(f"StereoSGBM needs an odd block size, not {block}")
+        return block
+
+
+class _Profile(Section):
+    name: str
+    baseline: float = Field(gt=0.0, le=1.0)
+    ir_hfov_deg: float = Field(gt=1.0, lt=179.0)
+    ir_scale: float = Field(1.0, gt=0.0, le=8.0)
+    T_rgb_irleft: tuple[float, float, float]
+    projector: _Projector
+    ambient: float = Field(ge=0.0)
+    ir_samples: int = Field(4, ge=1, le=65536)
+    matcher: _Matcher
+    depth_range: number_range(0.0, exclusive_low=True)
+
+
 def load_profile(name_or_path: str) -> SensorProfile:
     path, raw = named_yaml(name_or_path, SENSORS_DIR, "sensor profile")
-    try:
-        return SensorProfile(name=raw["name"], baseline=float(raw["baseline"]), ir_hfov_deg=float(raw["ir_hfov_deg"]),
-                             ir_scale=float(raw.get("ir_scale", 1.0)), T_rgb_irleft=make_T(t=raw["T_rgb_irleft"]),
-                             projector=dict(raw["projector"]), ambient=float(raw["ambient"]),
-                             ir_samples=int(raw.get("ir_samples", 4)), matcher=dict(raw["matcher"]),
-                             depth_range=tuple(raw["depth_range"]), source=raw)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise UserError(f"sensor profile {path}: missing or bad key {exc}; see scenes/sensors/d435.yaml") from None
+    if not isinstance(raw, dict):
+        raise UserError(f"sensor profile {path}: holds {type(raw).__name__}, not a mapping of settings")
+    p = validate(_Profile, raw, f"sensor profile {path}", {}, "scenes/sensors/d435.yaml")
+    return SensorProfile(name=p.name, baseline=p.baseline, ir_hfov_deg=p.ir_hfov_deg, ir_scale=p.ir_scale,
+                         T_rgb_irleft=make_T(t=p.T_rgb_irleft), projector=p.projector.model_dump(),
+                         ambient=p.ambient, ir_samples=p.ir_samples, matcher=p.matcher.model_dump(),
+                         depth_range=p.depth_range, source=raw)
 
 
 def dot_pattern(profile: SensorProfile, ir_width: int, seed: int = 0) -> np.ndarray:

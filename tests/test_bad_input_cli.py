@@ -282,3 +282,25 @@ def test_tables_and_overlays_mistakes(capsys, tmp_path):
             (overlays.main, [good, "--out", afile], ["models/"])):
         _fails(capsys, main, argv, *words)
     assert not (tmp_path / "t").exists() and not (tmp_path / "v").exists()
+
+
+D435 = yaml.safe_load(Path("scenes/sensors/d435.yaml").read_text())
+SENSORS = [("matcher.block", 4, "odd block size"), ("projector.power", "lots", "projector.power"),
+           ("baseline", 0, "baseline = 0"), ("depth_range", [6, 0.2], "inverted"),
+           ("matcher.blk", 5, "unknown key 'matcher.blk'"), ("ir_samples", 0, "ir_samples = 0")]
+
+
+@pytest.mark.parametrize("key,value,word", SENSORS, ids=[k for k, _, _ in SENSORS])
+def test_sensor_profile_mistakes(capsys, tmp_path, key, value, word):
+    content = json.loads(json.dumps(D435))
+    *parents, last = key.split(".")
+    node = content
+    for p in parents:
+        node = node[p]
+    node[last] = value
+    sensor = tmp_path / "s.yaml"
+    sensor.write_text(yaml.safe_dump(content))
+    out = tmp_path / "o"
+    _fails(capsys, syneepose_cli.main, ["render", "--depth", "stereo", "--sensor", sensor, "--out", out],
+           "s.yaml", word)
+    assert not out.exists()
