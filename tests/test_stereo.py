@@ -98,7 +98,7 @@ def test_depth_stereo_layout_and_profile(tmp_path, assets):
     proc = subprocess.run([sys.executable, "-m", "syneepose", "render", "--preset", "mini", "--out", str(tmp_path),
                            "--robots", "ur5e+robotiq_2f85", "--frames", "1", "--resolution", "96x72", "--samples", "2"],
                           capture_output=True, text=True)
-    assert proc.returncode == 2 and "never mixes depth kinds" in proc.stderr and "Traceback" not in proc.stderr
+    assert proc.returncode == 2 and "depth stereo -> exact" in proc.stderr and "Traceback" not in proc.stderr
     proc = subprocess.run([sys.executable, "-m", "syneepose", "render", "--out", str(tmp_path / "x"), "--depth",
                            "stereo", "--sensor", "nope"], capture_output=True, text=True)
     assert proc.returncode == 2 and "sensor profile 'nope' not found" in proc.stderr
