@@ -117,7 +117,50 @@ def _load_records(scene_dir: Path) -> dict[str, dict]:
         if not isinstance(content, dict):
             raise UserError(f"{paths[name]}: holds a {type(content).__name__}, not an object of frames; "
                             "delete the scene folder and write it again")
+    _check_fields(paths, records)
     return records
+
+
+# what the readers take from each frame's record: field -> number of values
+_CAMERA_FIELDS = {"cam_K": 9, "depth_scale": 1}
+_GT_FIELDS = {"obj_id": 1, "cam_R_m2c": 9, "cam_t_m2c": 3}
+
+
+def _check_fields(paths: dict[str, Path], records: dict[str, dict]) -> None:
+    """Every frame record holds the fields the readers use, as numbers of the right count: a hand-edited or
+    foreign file is named with its frame and field, not met later as a KeyError."""
+    def bad(name: str, key: str, field: str) -> UserError:
+        return UserError(f"{paths[name]}: frame {key} has no usable {field!r}; restore the file or delete the "
+                         "scene folder and write it again")
+
+    def numbers(value, count: int) -> bool:
+        flat = np.ravel(np.asarray(value, dtype=object)) if isinstance(value, list) else [value]
+        return len(flat) == count and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in flat)
+
+    for key, rec in records["scene_camera"].items():
+        for field, count in _CAMERA_FIELDS.items():
+            if not isinstance(rec, dict) or not numbers(rec.get(field), count):
+                raise bad("scene_camera", key, field)
+    for key, recs in records["scene_gt"].items():
+        for field, count in _GT_FIELDS.items():
+            if not isinstance(recs, list) or not recs or not isinstance(recs[GT_ID], dict) \
+                    or not numbers(recs[GT_ID].get(field), count):
+                raise bad("scene_gt", key, field)
+    robot = records["scene_robot"]
+    frames = robot.get("frames", {})
+    if frames:
+        for field in ("arm", "end_effector", "joint_names", "T_cam_base"):
+            if field not in robot:
+                raise UserError(f"{paths['scene_robot']}: no {field!r}; restore the file or delete the scene "
+                                "folder and write it again")
+    if not isinstance(frames, dict):
+        raise UserError(f"{paths['scene_robot']}: 'frames' is not an object of frames; delete the scene folder "
+                        "and write it again")
+    for key, rec in frames.items():
+        if not isinstance(rec, dict) or not numbers(rec.get("T_base_ee"), 16):
+            raise bad("scene_robot", key, "T_base_ee")
+        if not isinstance(rec.get("joint_positions"), list):
+            raise bad("scene_robot", key, "joint_positions")
 
 
 def _ordered(obj):

@@ -133,7 +133,7 @@ def test_preset_mistakes(capsys, tmp_path, content, words):
 
 
 @pytest.mark.parametrize("text,word", [("camera: [unclosed\n", "not valid YAML"), ("", "not a mapping"),
-                                       ("name: x\nwhen: 2024-01-01\n", "a preset holds numbers")])
+                                       ("name: x\nwhen: 2024-01-01\n", "settings are numbers")])
 def test_preset_files_that_are_not_presets(capsys, tmp_path, text, word):
     preset = tmp_path / "bad.yaml"
     preset.write_text(text)
@@ -249,6 +249,8 @@ def test_bop_csv_rows_it_cannot_place(capsys, tmp_path, dataset):
     ("dataset_info.json", "[1]", "dataset_info.json"),
     ("test/000000/scene_gt.json", "{\"0\": [", "scene_gt.json: not valid JSON"),
     ("test/000000/scene_camera.json", "[]", "scene_camera.json"),
+    ("test/000000/scene_camera.json", '{"0": {"depth_scale": 0.1}}', "frame 0 has no usable 'cam_K'"),
+    ("test/000000/scene_gt.json", '{"0": [{"obj_id": 2, "cam_R_m2c": [1, 0]}]}', "frame 0 has no usable 'cam_R_m2c'"),
 ])
 def test_eval_run_on_broken_data_set_files(capsys, tmp_path, dataset, name, content, word):
     broken = tmp_path / "data"
