@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from eval.handeye import BoardDetector, calibrate
+from eval.handeye import METHODS, BoardDetector, calibrate
 from eval.mask_noise import MaskNoise, mask_noise
 from eval.metrics import WORKSPACE_POINTS, calibration_error
 from eval.run import NO_POSE, Scene, _dataset_info, build_method, observation
@@ -88,10 +88,26 @@ def feepe_label(options: dict, plain_root: Path, depth_dir: str, noise: MaskNois
     return name + (f" ({', '.join(seen)})" if seen else "")
 
 
+def _check(views, draws: int, seed: int, hand_eye: str, frames: int) -> None:
+    """Every option before any frame is read: a mistake is one line and writes nothing."""
+    if not views or any(not 1 <= n <= frames for n in views):
+        raise UserError(f"--views {','.join(map(str, views))}: each number must lie in 1..{frames}, the frames of "
+                        "the shortest segment (hand-eye calibrates from 3 views on)")
+    if len(set(views)) != len(views):
+        raise UserError(f"--views {','.join(map(str, views))}: name each number of views once")
+    if not 1 <= draws <= 1000:
+        raise UserError(f"--draws {draws}: must lie in 1..1000")
+    if seed < 0:
+        raise UserError(f"--seed {seed}: must be >= 0")
+    if hand_eye not in METHODS:
+        raise UserError(f"--hand-eye {hand_eye!r} unknown; choose one of {', '.join(METHODS)}")
+
+
 def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: int = 0, hand_eye: str = "tsai",
         feepe: dict | None = None, depth_dir: str = "depth", noise: MaskNoise | None = None) -> list[Trial]:
     """`feepe`: the FEEPE method's options as `eval.run --method feepe` takes them (variant, icp, refine, ...)."""
     pairs = _pairs(Path(marker_root), Path(plain_root))
+    _check(views, draws, seed, hand_eye, min(len(read_scene(m)[1]) for m, _ in pairs))
     method = build_method("feepe", feepe or {})
     feepe_name = feepe_label(method.options(), Path(plain_root), depth_dir, noise)
     preset = Path(_dataset_info(Path(marker_root)).get("preset") or "targeting").stem
@@ -112,8 +128,6 @@ def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: 
         plain = {i: observation(scene, i, depth_dir, cameras, noise)[0] for i in ids}
         hidden = dataclasses.replace(plain_meta, T_cam_base=NO_POSE.copy())
         for n in views:
-            if n > len(ids):
-                raise UserError(f"{marker_dir}: {len(ids)} frames, fewer than --views {n}")
             for draw in range(draws):
                 chosen = sorted(rng.choice(ids, n, replace=False).tolist())
                 seen = [boards[i] for i in chosen if boards[i][1] is not None]

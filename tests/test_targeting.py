@@ -100,3 +100,14 @@ def test_targeting_refuses_scenes_that_are_not_twins(twins, tmp_path):
     assert proc.returncode == 2 and "no marker board" in proc.stderr and "Traceback" not in proc.stderr
     proc = _run("eval.run", "--method", "handeye", "--dataset", str(twins / "plain"), "--out", str(tmp_path / "y"))
     assert proc.returncode == 2 and "render --marker" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("args,word", [(["--views", "0"], "--views 0"), (["--views", "3,3"], "once"),
+                                       (["--views", "99"], "--views 99"), (["--draws", "0"], "--draws 0"),
+                                       (["--seed", "-1"], "--seed -1"), (["--hand-eye", "foo"], "'foo'")])
+def test_targeting_flag_mistakes_write_nothing(twins, tmp_path, args, word):
+    out = tmp_path / "t"
+    proc = _run("eval.targeting", "--marker", str(twins / "marker"), "--plain", str(twins / "plain"), "--out",
+                str(out), "--views", "2,3", *args)  # the twins have 3 frames; a later --views wins
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and word in proc.stderr.strip().splitlines()[-1]
+    assert not out.exists()
