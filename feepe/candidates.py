@@ -18,6 +18,7 @@ from feepe.matching import best_buddies
 from feepe.onboarding import TemplateBank
 from feepe.pnp import solve_pnp
 from feepe.silhouette import MaskView
+from syneepose.errors import UserError
 
 
 @dataclass
@@ -54,6 +55,14 @@ class SingleFrameOptions:
     pnp_threshold_px: float = 4.0  # crop pixels
     pnp_iterations: int = 100
     min_mask_px: int = 64
+
+    def __post_init__(self):
+        for name, low in (("k_r", 1), ("max_matches", 4), ("pnp_iterations", 1), ("min_mask_px", 1)):
+            if not getattr(self, name) >= low:
+                raise UserError(f"SingleFrameOptions.{name} = {getattr(self, name)} must be >= {low}")
+        for name in ("pad", "pnp_threshold_px"):
+            if not getattr(self, name) > 0:
+                raise UserError(f"SingleFrameOptions.{name} = {getattr(self, name)} must be > 0")
 
 
 def frame_candidates(rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray, bank: TemplateBank,

@@ -68,6 +68,17 @@ class FeepeOptions:
     def __post_init__(self):
         if not self.silhouette_refit_growth >= 0:
             raise UserError(f"refit growth {self.silhouette_refit_growth} must be >= 0 (0: refit on each new key frame)")
+        for name, low in (("k_f", 0), ("memory_threshold_deg", 0), ("symmetry_tolerance_deg", 0),
+                          ("icp_iterations", 0), ("icp_gate_m", 0), ("silhouette_rounds", 1),
+                          ("silhouette_starts", 1), ("robot_start_frames", 0)):
+            if not getattr(self, name) >= low:
+                raise UserError(f"FeepeOptions.{name} = {getattr(self, name)} must be >= {low}")
+        for name in ("icp_sigma_m", "silhouette_min_sigma_px", "depth_sigma_m"):
+            if not getattr(self, name) > 0:
+                raise UserError(f"FeepeOptions.{name} = {getattr(self, name)} must be > 0")
+        if not self.silhouette_sigmas_px or not all(s > 0 for s in self.silhouette_sigmas_px):
+            raise UserError(f"FeepeOptions.silhouette_sigmas_px = {self.silhouette_sigmas_px}: give one or more "
+                            "positive scales, coarse to fine")
         if self.variant not in VARIANTS:
             raise UserError(f"FEEPE variant {self.variant!r} unknown; choose one of {', '.join(VARIANTS)}")
         if self.icp and self.variant == "A":

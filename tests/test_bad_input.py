@@ -110,3 +110,22 @@ def test_load_catalog_rejects_bad_symmetry():
     with pytest.raises(UserError):
         _symmetry("x", {"axis": "w", "order": 2})
     assert load_catalog() is load_catalog()
+
+
+@pytest.mark.parametrize("options,word", [({"k_f": -2}, "k_f"), ({"memory_threshold_deg": -1}, "memory_threshold_deg"),
+                                          ({"silhouette_starts": 0}, "silhouette_starts"),
+                                          ({"silhouette_sigmas_px": ()}, "silhouette_sigmas_px"),
+                                          ({"icp_sigma_m": 0.0}, "icp_sigma_m")])
+def test_estimator_options_out_of_range_are_named(options, word):
+    from feepe.estimator import FeepeOptions
+
+    with pytest.raises(UserError, match=word):
+        FeepeOptions(**options)
+
+
+@pytest.mark.parametrize("options,word", [({"k_r": 0}, "k_r"), ({"pad": 0.0}, "pad"), ({"max_matches": 2}, "max_matches")])
+def test_single_frame_options_out_of_range_are_named(options, word):
+    from feepe.candidates import SingleFrameOptions
+
+    with pytest.raises(UserError, match=word):
+        SingleFrameOptions(**options)
