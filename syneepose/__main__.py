@@ -114,6 +114,8 @@ def _execute(args, fn, jobs, report, bar) -> None:
 
 
 def _writable(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out} is a file; give a folder")
     try:
         out.mkdir(parents=True, exist_ok=True)
         (out / ".write-probe").write_text("")

@@ -159,6 +159,14 @@ OTHERS = [
 ]
 
 
+def test_render_and_templates_out_naming_a_file(capsys, tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    for command in ("render", "templates"):
+        _fails(capsys, syneepose_cli.main, [command, "--out", afile], "--out", "is a file")
+    assert afile.read_text() == ""
+
+
 @pytest.mark.parametrize("args,words", OTHERS, ids=[" ".join(map(str, a)) for a, _ in OTHERS])
 def test_templates_and_assets_mistakes(capsys, tmp_path, args, words):
     out = tmp_path / "o"
