@@ -152,7 +152,7 @@ def open_results(folder: Path, dataset: Path | None = None) -> ResultFolder:
     if not summary_path.is_file():
         raise UserError(f"{summary_path}: missing; give a folder written by python -m eval.run --out")
     recorded = read_json(summary_path, "run python -m eval.run into that folder again")
-    if not isinstance(recorded, dict) or not isinstance(recorded.get("dataset"), dict) or "path" not in recorded["dataset"]:
+    if not isinstance(recorded.get("dataset"), dict) or "path" not in recorded["dataset"]:
         raise UserError(f"{summary_path}: not an eval.run summary (no dataset.path); pass --dataset DIR")
     recorded = recorded["dataset"]
     root = Path(dataset or recorded["path"])

@@ -33,9 +33,10 @@ from eval.metrics import WORKSPACE_POINTS, add, adds, calibration_error, rotatio
 from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
-from syneepose.bop import (SceneMeta, complete_frames, read_frame, read_gt_poses, read_json, read_png, read_scene,
-                          scene_dirs, split_name, write_atomic)
+from syneepose.bop import (SceneMeta, complete_frames, read_dataset_info, read_frame, read_gt_poses, read_json,
+                          read_png, read_scene, scene_dirs, split_name, write_atomic)
 from syneepose.errors import UserError
+from syneepose.settings import comma_list
 
 METHOD_OPTIONS = ("variant", "icp", "refine", "silhouette", "refit_growth", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
                   "templates_dir", "bow_assignment", "hand_eye", "results", "name")  # CLI options handed to the method's constructor
@@ -70,16 +71,6 @@ def build_method(name: str, given: dict):
     return cls(**given)
 
 
-def _dataset_info(root: Path) -> dict:
-    path = root / "dataset_info.json"
-    if not path.is_file():
-        return {}
-    info = read_json(path, "restore it, or render the data set again")
-    if not isinstance(info, dict):
-        raise UserError(f"{path}: not a data set description (a JSON object)")
-    return info
-
-
 def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list[Scene]:
     if not split_dir.parent.is_dir():
         raise UserError(f"--dataset {split_dir.parent}: no such folder; give the root of a BOP data set")
@@ -89,15 +80,12 @@ def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list
     present = scene_dirs(split_dir)
     ids = sorted(present)
     if scenes:
-        try:
-            ids = [int(v) for v in scenes.split(",") if v.strip()]
-        except ValueError:
-            raise UserError(f"--scenes {scenes!r} must be comma-separated scene ids, e.g. 0,1,2") from None
-        if not ids:
-            raise UserError(f"--scenes {scenes!r} names no scene; give ids, e.g. 0,1,2, or leave it out for all")
-        twice = sorted({i for i in ids if ids.count(i) > 1})
-        if twice:
-            raise UserError(f"--scenes names {', '.join(map(str, twice))} twice; name each scene once")
+        def is_id(text: str) -> None:
+            if not text.isdigit():
+                raise UserError(f"--scenes {scenes!r} must be comma-separated scene ids, e.g. 0,1,2")
+
+        ids = [int(v) for v in comma_list(scenes, "--scenes", "scene", "give ids, e.g. 0,1,2, or leave it out for all",
+                                          is_id)]
         missing = [i for i in ids if i not in present]
         if missing:
             raise UserError(f"--scenes: scene {missing[0]} is not in {split_dir} (it has {len(present)} scenes)")
@@ -251,8 +239,6 @@ def _claim(out: Path, identity: dict) -> None:
     path = out / "run.json"
     if path.is_file():
         before = read_json(path, "delete the --out folder or use another")
-        if not isinstance(before, dict):
-            raise UserError(f"{path}: not a run description (a JSON object); delete the --out folder or use another")
         changed = sorted(k for k in set(identity) | set(before) if before.get(k) != identity.get(k))
         if changed:
             raise UserError(f"--out {out} holds a run with other {', '.join(changed)} ({path}); "
@@ -292,7 +278,7 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     """Runs (or resumes) the evaluation and returns the summary it wrote to <out>/summary.json."""
     method = build_method(method_name, options)
     dataset, out = Path(dataset).resolve(), Path(out)
-    info, opts = _dataset_info(dataset), method.options()
+    info, opts = read_dataset_info(dataset), method.options()
     split = split_name(dataset)
     selected = find_scenes(dataset / split, scenes, robots)
     identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir}

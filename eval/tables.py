@@ -66,7 +66,7 @@ AVERAGE_KEYS = ("add@1cm", "adds@1cm", "add@2cm", "adds@2cm")
 def _summary(path: Path) -> dict:
     """A run's summary.json with what the tables read; a broken or foreign one is named in one line."""
     s = read_json(path, "run python -m eval.run into that folder again")
-    missing = [k for k in SUMMARY_KEYS if not isinstance(s, dict) or k not in s]
+    missing = [k for k in SUMMARY_KEYS if k not in s]
     if not missing:
         missing = [f"average.{k}" for k in AVERAGE_KEYS if not isinstance(s["average"], dict) or k not in s["average"]]
     if missing:

@@ -28,10 +28,10 @@ from tqdm import tqdm
 from eval.handeye import METHODS, BoardDetector, calibrate
 from eval.mask_noise import MaskNoise, mask_noise
 from eval.metrics import WORKSPACE_POINTS, calibration_error
-from eval.run import NO_POSE, Scene, _dataset_info, build_method, observation
+from eval.run import NO_POSE, Scene, build_method, observation
 from eval.tables import method_label
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
-from syneepose.bop import read_frame, read_json, read_scene, scene_dirs, split_dir, write_atomic
+from syneepose.bop import read_dataset_info, read_frame, read_json, read_scene, scene_dirs, split_dir, write_atomic
 from syneepose.cli import output_dir, run_command
 from syneepose.errors import UserError
 from syneepose.scene.marker import MarkerBoard
@@ -77,7 +77,7 @@ def _error(T_est: np.ndarray | None, T_gt: np.ndarray) -> tuple[float, float]:
 
 
 def _depth_label(root: Path, depth_dir: str) -> str:
-    kind = _dataset_info(root).get("depth_dirs", {}).get(depth_dir, "exact")
+    kind = read_dataset_info(root).get("depth_dirs", {}).get(depth_dir, "exact")
     return f"{kind} depth" if kind != "exact" else ""
 
 
@@ -110,7 +110,7 @@ def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: 
     _check(views, draws, seed, hand_eye, min(len(read_scene(m)[1]) for m, _ in pairs))
     method = build_method("feepe", feepe or {})
     feepe_name = feepe_label(method.options(), Path(plain_root), depth_dir, noise)
-    preset = Path(_dataset_info(Path(marker_root)).get("preset") or "targeting").stem
+    preset = Path(read_dataset_info(Path(marker_root)).get("preset") or "targeting").stem
     marker_name = "marker hand-eye" + (f" ({preset})" if preset != "targeting" else "")  # the old rows' name
     trials, rng = [], np.random.default_rng(seed)
     bar = tqdm(total=len(pairs) * len(views) * draws, unit="trial", desc="targeting")

@@ -131,7 +131,7 @@ def _templates(args) -> None:
     from syneepose import paths
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
-    from syneepose.templates import check_resume
+    from syneepose.templates import check_samples
 
     _check_run(args)
     catalog = load_catalog()
@@ -145,7 +145,7 @@ def _templates(args) -> None:
     jobs = [J.TemplateJob(n, str(out), settings.views, settings.inplane, settings.resolution, settings.samples,
                           str(assets), args.device) for n in names]
     for job in jobs:
-        check_resume(job.folder, job.samples)
+        check_samples(job.folder, job.samples)
     done_before = {j: J.templates_done(j) for j in jobs}
     bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="template",
                desc="templates")

@@ -100,23 +100,30 @@ def _floats(a) -> list[float]:
     return np.asarray(a, dtype=float).ravel().tolist()
 
 
-def read_json(path: Path, fix: str = "delete the scene folder and write it again"):
-    """A JSON file that a kill, a full disk or a hand edit may have broken: one line naming it."""
+def read_json(path: Path, fix: str = "delete the scene folder and write it again", kind: type | None = dict):
+    """A JSON file that a kill, a full disk or a hand edit may have broken: one line naming it. `kind`: what
+    the top level must be (None: anything)."""
     try:
-        return json.loads(Path(path).read_text())
+        content = json.loads(Path(path).read_text())
     except OSError as exc:
         raise UserError(f"{path}: cannot read ({exc.strerror})") from None
     except ValueError as exc:
         raise UserError(f"{path}: not valid JSON ({exc}); {fix}") from None
+    if kind is not None and not isinstance(content, kind):
+        wanted = "an object" if kind is dict else f"a {kind.__name__}"
+        raise UserError(f"{path}: holds a {type(content).__name__}, not {wanted}; {fix}")
+    return content
+
+
+def read_dataset_info(root: Path) -> dict:
+    """The data set's dataset_info.json ({} for a folder without one)."""
+    path = Path(root) / "dataset_info.json"
+    return read_json(path, "restore it, or render into another --out") if path.is_file() else {}
 
 
 def _load_records(scene_dir: Path) -> dict[str, dict]:
     paths = {name: scene_dir / f"{name}.json" for name in _JSONS}
     records = {name: read_json(p) if p.exists() else {} for name, p in paths.items()}
-    for name, content in records.items():
-        if not isinstance(content, dict):
-            raise UserError(f"{paths[name]}: holds a {type(content).__name__}, not an object of frames; "
-                            "delete the scene folder and write it again")
     _check_fields(paths, records)
     return records
 
@@ -148,13 +155,12 @@ def _check_fields(paths: dict[str, Path], records: dict[str, dict]) -> None:
                 raise bad("scene_gt", key, field)
     robot = records["scene_robot"]
     frames = robot.get("frames", {})
-    if frames:
-        for field in ("arm", "end_effector", "joint_names", "T_cam_base"):
-            if field not in robot:
-                raise UserError(f"{paths['scene_robot']}: no {field!r}; restore the file or delete the scene "
-                                "folder and write it again")
     if not isinstance(frames, dict):
         raise UserError(f"{paths['scene_robot']}: 'frames' is not an object of frames; delete the scene folder "
+                        "and write it again")
+    missing = [f for f in ("arm", "end_effector", "joint_names", "T_cam_base") if frames and f not in robot]
+    if missing:
+        raise UserError(f"{paths['scene_robot']}: no {missing[0]!r}; restore the file or delete the scene folder "
                         "and write it again")
     for key, rec in frames.items():
         if not isinstance(rec, dict) or not numbers(rec.get("T_base_ee"), 16):
@@ -386,13 +392,10 @@ class SceneWriter:
 def split_name(root: Path) -> str:
     """The split a data set was written to, from its dataset_info.json; "train" for data sets (and
     folders without one) from before renders wrote the BOP `test` split."""
-    info = Path(root) / "dataset_info.json"
-    if not info.is_file():
-        return "train"
-    content = read_json(info, "write it again by rendering into the folder, or restore it")
-    if not isinstance(content, dict) or not isinstance(content.get("split", "train"), str):
-        raise UserError(f"{info}: not a data set description (an object with a split name)")
-    return content.get("split", "train")
+    split = read_dataset_info(root).get("split", "train")
+    if not isinstance(split, str):
+        raise UserError(f"{Path(root) / 'dataset_info.json'}: split {split!r} is not a folder name")
+    return split
 
 
 def split_dir(root: Path) -> Path:

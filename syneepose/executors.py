@@ -46,10 +46,10 @@ def run_local(fn, jobs: list, workers: int, progress) -> None:
                 progress(job)
     finally:
         for proc, _ in running.values():
-            stop(proc)
+            _stop(proc)
 
 
-def stop(proc) -> None:
+def _stop(proc) -> None:
     proc.terminate()
     proc.join(GRACE_S)
     if proc.is_alive():

@@ -192,11 +192,7 @@ def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: li
                        settings: dict | None = None) -> None:
     """`settings` (job_settings): what every scene of the data set was rendered with (resume.check_resume)."""
     info_path = out / "dataset_info.json"
-    info = {}
-    if info_path.is_file():
-        info = bop.read_json(info_path, "restore it, or render into another --out")
-        if not isinstance(info, dict):
-            raise UserError(f"{info_path}: not a data set description (a JSON object); render into another --out")
+    info = bop.read_dataset_info(out)
     first = asdict(jobs[0]) if jobs else {}
     if info.get("split", SPLIT) != SPLIT and info.get("configurations"):
         raise UserError(f"{out} holds a data set in {info['split']}/ (dataset_info.json), renders now write "

@@ -25,12 +25,7 @@ _OWNED = re.compile(r"^\..+\.(?:tmp|overwritten)(\d+)$")  # staged models, datas
 
 def recorded_settings(out: Path) -> dict | None:
     """The settings dataset_info.json records (the legacy subset for older data sets); None without one."""
-    path = Path(out) / "dataset_info.json"
-    if not path.is_file():
-        return None
-    info = bop.read_json(path, "restore it, or render into another --out")
-    if not isinstance(info, dict):
-        raise UserError(f"{path}: not a data set description (a JSON object)")
+    info = bop.read_dataset_info(out)
     if isinstance(info.get("settings"), dict):
         return info["settings"]
     return {new: info[old] for old, new in _LEGACY.items() if old in info} or None
@@ -44,7 +39,7 @@ def _scene_settings(scene_dir: Path, fallback: dict | None) -> dict | None:
     robot = scene_dir / "scene_robot.json"
     if robot.is_file():
         record = bop.read_json(robot)
-        if isinstance(record, dict) and isinstance(record.get("settings"), dict):
+        if isinstance(record.get("settings"), dict):
             return record["settings"]
     return fallback
 

@@ -38,6 +38,21 @@ def int_range(low: int, high: int):
     return Annotated[tuple[item, item], AfterValidator(_ordered)]
 
 
+def comma_list(text: str, flag: str, noun: str, hint: str, check=None) -> list[str]:
+    """A flag's comma-separated names: at least one, each passed to `check` (which raises for an unknown
+    one), none twice."""
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise UserError(f"{flag} {text!r} names no {noun}; {hint}")
+    for name in names:
+        if check is not None:
+            check(name)
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise UserError(f"{flag} names {', '.join(twice)} twice; name each {noun} once")
+    return names
+
+
 def validate(model: type[Section], content: dict, source: str, flags: dict, example: str):
     """`content` as a `model`; `flags` are the command-line values in it (named as --flag in errors),
     `example` the file a user should compare theirs with."""

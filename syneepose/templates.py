@@ -91,13 +91,10 @@ def read_index(folder: Path) -> dict:
     path = Path(folder) / "templates.json"
     if not path.is_file():
         raise UserError(f"no template set at {folder}: render it with `python -m syneepose templates`")
-    index = read_json(path, "delete the template set folder and render it again")
-    if not isinstance(index, dict):
-        raise UserError(f"{path}: not a template index (an object of templates); delete the folder and render it again")
-    return index
+    return read_json(path, "delete the template set folder and render it again")
 
 
-def check_resume(folder: Path, samples: int) -> None:
+def check_samples(folder: Path, samples: int) -> None:
     """A set is rendered with one sample count: a rerun that asks for another would mix two noise levels."""
     if not (Path(folder) / "templates.json").is_file():
         return

@@ -10,6 +10,7 @@ import numpy as np
 import yaml
 
 from syneepose.errors import UserError
+from syneepose.settings import comma_list
 from syneepose.robots.model import Mimic
 from syneepose.transforms import xyz_rpy_to_T
 
@@ -90,16 +91,8 @@ class Catalog:
         """Comma-separated end-effector names (None -> all), validated."""
         if text is None:
             return list(self.end_effectors)
-        names = [n.strip() for n in text.split(",") if n.strip()]
-        if not names:
-            raise UserError(f"--ee {text!r} names no end-effector; known: {', '.join(self.end_effectors)}, "
-                            "or leave it out for all")
-        for n in names:
-            self.end_effector(n)
-        twice = sorted({n for n in names if names.count(n) > 1})
-        if twice:
-            raise UserError(f"--ee names {', '.join(twice)} twice; name each end-effector once")
-        return names
+        return comma_list(text, "--ee", "end-effector", f"known: {', '.join(self.end_effectors)}, or leave it "
+                          "out for all", self.end_effector)
 
     def part(self, name: str) -> Part:
         return self.arms[name] if name in self.arms else self.end_effector(name)
@@ -119,16 +112,8 @@ class Catalog:
         """Comma-separated ARM+EE names (None or 'all' -> all 18), validated."""
         if text is None or text.strip() in ("", "all"):
             return self.configurations
-        configs = [c.strip() for c in text.split(",") if c.strip()]
-        if not configs:
-            raise UserError(f"--robots {text!r} names no configuration; give ARM+EE names, e.g. ur5e+robotiq_2f85, "
-                            "or leave it out for all 18")
-        for c in configs:
-            self.split(c)
-        twice = sorted({c for c in configs if configs.count(c) > 1})
-        if twice:
-            raise UserError(f"--robots names {', '.join(twice)} twice; name each configuration once")
-        return configs
+        return comma_list(text, "--robots", "configuration", "give ARM+EE names, e.g. ur5e+robotiq_2f85, or leave "
+                          "it out for all 18", self.split)
 
 
 def _part_fields(name: str, entry: dict) -> dict:
