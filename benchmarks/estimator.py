@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from syneepose.templates import find_template_set
-from feepe.backbones import DEFAULT, get_backbone
 from eval.methods.feepe import arm_models, robot_view
+from feepe.backbones import DEFAULT, get_backbone
 from feepe.estimator import REFINEMENTS, Estimator, FeepeOptions, load_models
 from feepe.onboarding import onboard
-from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir
+from kernel.bop import read_frame, read_scene, scene_dirs, split_dir
+from kernel.template_set import find_template_set
 
 STAGES = ("backbone", "retrieval", "matching", "pnp", "optimisation", "refinement", "robot_starts", "total")
 

@@ -18,7 +18,7 @@ import numpy as np
 from eval.bop_results import read_results
 from eval.metrics import add, adds, auc
 from eval.model_points import MAX_QUERY, load_eval_model
-from syneepose.bop import read_frame, read_scene
+from kernel.bop import read_frame, read_scene
 
 
 def main() -> None:

@@ -14,9 +14,9 @@ from scipy.spatial.transform import Rotation
 
 from eval.metrics import add, adds, auc
 from eval.model_points import MAX_QUERY, load_eval_model, symmetries_m
+from kernel.transforms import make_T
 from syneepose import paths
 from syneepose.robots.build import build_assets
-from syneepose.transforms import make_T
 
 FRAMES_PER_EE = 9000
 

@@ -10,9 +10,9 @@ from typing import Iterable
 
 import numpy as np
 
-from syneepose.bop import write_atomic
-from syneepose.errors import UserError
-from syneepose.transforms import make_T
+from kernel.errors import UserError
+from kernel.files import write_atomic
+from kernel.transforms import make_T
 
 HEADER = "scene_id,im_id,obj_id,score,R,t,time"
 ROTATION_TOL = 1e-3  # |R R^T - I| and |det R - 1|: 6 printed digits pass, a wrong matrix does not

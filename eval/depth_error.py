@@ -17,9 +17,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from eval.plots import save_figure
-from syneepose.cli import run_command
-from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir
-from syneepose.errors import UserError
+from kernel.bop import read_frame, read_scene, scene_dirs, split_dir
+from kernel.cli import run_command
+from kernel.errors import UserError
 
 
 def ee_depth_errors(root: Path) -> tuple[dict[str, np.ndarray], dict[str, float]]:

@@ -10,9 +10,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.transforms import inv_T, make_T
 from syneepose.scene.marker import MarkerBoard
-from syneepose.transforms import inv_T, make_T
 
 METHODS = {"tsai": cv2.CALIB_HAND_EYE_TSAI, "park": cv2.CALIB_HAND_EYE_PARK, "horaud": cv2.CALIB_HAND_EYE_HORAUD,
            "andreff": cv2.CALIB_HAND_EYE_ANDREFF, "daniilidis": cv2.CALIB_HAND_EYE_DANIILIDIS}

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 
 @dataclass(frozen=True)

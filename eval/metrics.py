@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from pykdtree.kdtree import KDTree
 
-from syneepose.transforms import inv_T, rotation_angle
+from kernel.transforms import inv_T, rotation_angle
 
 CHUNK = 256  # frames per vectorised block: bounds memory at CHUNK x points x 3 floats
 _trapezoid = getattr(np, "trapezoid", None) or np.trapz  # NumPy 2 renamed trapz

@@ -20,9 +20,10 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+
 from eval.metrics import KDTree, model_tree
-from syneepose.bop import read_json
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.files import read_json
 
 MODELS_EVAL = "models_eval"
 MAX_QUERY = 1000  # cells, one query vertex drawn in each per frame: tests/test_eval_metrics.py, benchmarks/

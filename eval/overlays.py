@@ -21,10 +21,11 @@ import numpy as np
 import trimesh
 
 from eval.bop_results import read_results
-from syneepose.cli import output_dir, run_command
 from eval.records import FrameErrors, read_errors
-from syneepose.bop import read_frame, read_json, split_name, write_atomic, write_png
-from syneepose.errors import UserError
+from kernel.bop import read_frame, split_name
+from kernel.cli import output_dir, run_command
+from kernel.errors import UserError
+from kernel.files import read_json, write_atomic, write_png
 from syneepose.show import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
 
 EST_COLOUR = (255, 0, 255)

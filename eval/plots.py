@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 
 from eval.metrics import accuracy_curve, auc
 from eval.records import FrameErrors
-from syneepose.bop import write_atomic
+from kernel.files import write_atomic
 
 
 def save_figure(fig: Figure, path: Path) -> None:

@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 from feepe.depth import normal_map, point_map
 from feepe.icp import PlaneTerm, SurfaceModel, associate
 from feepe.optimize import OptimizeOptions, optimize, stack
-from syneepose.transforms import make_T, rotation_angle
+from kernel.transforms import make_T, rotation_angle
 
 
 @dataclass

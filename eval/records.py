@@ -11,8 +11,8 @@ import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from syneepose.bop import write_atomic
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.files import write_atomic
 
 
 @dataclass

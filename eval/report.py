@@ -20,12 +20,12 @@ from pathlib import Path
 
 import cv2
 
-from syneepose.cli import run_command
 from eval.overlays import EST_COLOUR, ResultFolder, open_results, write_gif
 from eval.records import FrameErrors
 from eval.tables import Run, load_runs, write_tables
-from syneepose.bop import write_png
-from syneepose.errors import UserError
+from kernel.cli import run_command
+from kernel.errors import UserError
+from kernel.files import write_png
 from syneepose.show import GT_COLOUR
 
 STYLE = """

@@ -24,19 +24,20 @@ import numpy as np
 from tqdm import tqdm
 
 from eval.bop_results import BopResult, read_results, write_results
-from syneepose.cli import run_command
+from eval.fingerprint import differences, only_scoring_changed, read_fingerprint, scene_fingerprint
+from eval.mask_noise import MaskNoise, frame_rng, mask_noise, perturb
 from eval.methods import get_method
 from eval.methods.base import Estimate, Observation
-from eval.mask_noise import MaskNoise, frame_rng, mask_noise, perturb
-from eval.fingerprint import differences, only_scoring_changed, read_fingerprint, scene_fingerprint
 from eval.metrics import WORKSPACE_POINTS, add, adds, calibration_error, rotation_error_deg, translation_error_mm
 from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
-from syneepose.bop import (SceneMeta, complete_frames, read_dataset_info, read_frame, read_gt_poses, read_json,
-                          read_png, read_scene, scene_dirs, split_name, write_atomic)
-from syneepose.errors import UserError
-from syneepose.settings import comma_list
+from kernel.bop import (SceneMeta, complete_frames, read_dataset_info, read_frame, read_gt_poses, read_scene,
+                        scene_dirs, split_name)
+from kernel.cli import run_command
+from kernel.errors import UserError
+from kernel.files import read_json, read_png, write_atomic
+from kernel.settings import comma_list
 
 METHOD_OPTIONS = ("variant", "icp", "refine", "silhouette", "refit_growth", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
                   "templates_dir", "bow_assignment", "hand_eye", "results", "name")  # CLI options handed to the method's constructor

@@ -18,11 +18,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from eval import reported
-from syneepose.cli import output_dir, run_command
 from eval.plots import accuracy_curves, convergence_plot, read_trials, targeting_plot
 from eval.records import read_errors
-from syneepose.bop import read_json, write_atomic
-from syneepose.errors import UserError
+from kernel.cli import output_dir, run_command
+from kernel.errors import UserError
+from kernel.files import read_json, write_atomic
 
 NONE = "–"
 _LATEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "#": r"\#", "_": r"\_", "$": r"\$", "{": r"\{",

@@ -31,9 +31,10 @@ from eval.metrics import WORKSPACE_POINTS, calibration_error
 from eval.run import NO_POSE, Scene, build_method, observation
 from eval.tables import method_label
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
-from syneepose.bop import read_dataset_info, read_frame, read_json, read_scene, scene_dirs, split_dir, write_atomic
-from syneepose.cli import output_dir, run_command
-from syneepose.errors import UserError
+from kernel.bop import read_dataset_info, read_frame, read_scene, scene_dirs, split_dir
+from kernel.cli import output_dir, run_command
+from kernel.errors import UserError
+from kernel.files import read_json, write_atomic
 from syneepose.scene.marker import MarkerBoard
 
 VIEWS = (3, 5, 10, 15, 20)

@@ -18,7 +18,7 @@ from feepe.matching import best_buddies
 from feepe.onboarding import TemplateBank
 from feepe.pnp import solve_pnp
 from feepe.silhouette import MaskView
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 
 @dataclass

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from feepe.depth import backproject
-from syneepose.transforms import make_T
+from kernel.transforms import make_T
 
 MIN_DEPTH_PX = 20  # masked pixels with depth needed for a centre
 

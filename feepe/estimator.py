@@ -26,8 +26,8 @@ from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
 from feepe.robot_starts import model_points, observed_points, robot_starts
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, contour_fit, contour_term, mask_view, mean_iou
 from feepe.symmetry import consensus
-from syneepose.errors import UserError
-from syneepose.transforms import inv_T, transform_points
+from kernel.errors import UserError
+from kernel.transforms import inv_T, transform_points
 
 VARIANTS = ("A", "B", "C", "D")
 REFINEMENTS = ("none", "silhouette", "silhouette+depth")

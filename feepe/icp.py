@@ -19,8 +19,8 @@ from scipy.spatial import cKDTree
 
 from feepe.depth import backproject
 from feepe.optimize import row_jacobian
-from syneepose.errors import UserError
-from syneepose.transforms import inv_T, transform_points
+from kernel.errors import UserError
+from kernel.transforms import inv_T, transform_points
 
 
 @dataclass

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from feepe.candidates import FrameCandidates
-from syneepose.transforms import rotation_angle
+from kernel.transforms import rotation_angle
 
 
 @dataclass

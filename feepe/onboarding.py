@@ -20,10 +20,10 @@ import numpy as np
 from feepe.bow import BowIndex, build_index
 from feepe.crop import crop_around_mask
 from feepe.depth import backproject, depth_at
-from syneepose.bop import write_atomic
-from syneepose.errors import UserError
-from syneepose.templates import read_index, read_template
-from syneepose.transforms import inv_T, transform_points
+from kernel.errors import UserError
+from kernel.files import write_atomic
+from kernel.template_set import read_index, read_template
+from kernel.transforms import inv_T, transform_points
 
 CACHE_VERSION = 2  # 2: the BoW assignment is stored
 TEMPLATE_IMAGES = ("rgb", "depth", "mask")  # the folders read_template reads

@@ -15,7 +15,7 @@ from typing import Protocol, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from syneepose.transforms import transform_points
+from kernel.transforms import transform_points
 
 
 @dataclass

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from syneepose.transforms import make_T
+from kernel.transforms import make_T
 
 MIN_POINTS = 6
 

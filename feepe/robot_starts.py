@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from feepe.depth import backproject
-from syneepose.transforms import inv_T, make_T, transform_points
+from kernel.transforms import inv_T, make_T, transform_points
 
 N_ROTATIONS = 2000  # uniform on SO(3): neighbours about 15 deg apart
 TRUNCATE_M = 0.05

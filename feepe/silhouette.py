@@ -21,8 +21,8 @@ from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from feepe.depth import backproject, depth_at
 from feepe.optimize import project, row_jacobian
-from syneepose.errors import UserError
-from syneepose.transforms import inv_T, transform_points
+from kernel.errors import UserError
+from kernel.transforms import inv_T, transform_points
 
 BORDER_PX = 2  # contour points this close to the image border are dropped: the mask is cut there
 

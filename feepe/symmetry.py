@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from syneepose.transforms import inv_T
+from kernel.transforms import inv_T
 
 
 def implied_calibrations(T_cam_ee: np.ndarray, T_base_ee: np.ndarray) -> np.ndarray:

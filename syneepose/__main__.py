@@ -6,8 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from syneepose.cli import run_command
-from syneepose.errors import UserError
+from kernel.cli import run_command
+from kernel.errors import UserError
 from syneepose.preset import load_preset, templates_with
 
 MAX_WORKERS = 64
@@ -127,11 +127,11 @@ def _writable(out: Path) -> None:
 def _templates(args) -> None:
     from tqdm import tqdm
 
+    from kernel.template_set import check_samples
     from syneepose import jobs as J
     from syneepose import paths
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
-    from syneepose.templates import check_samples
 
     _check_run(args)
     catalog = load_catalog()

@@ -17,11 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from syneepose import __version__, bop, paths
-from syneepose.errors import UserError
+from kernel import bop
+from kernel.errors import UserError
+from kernel.transforms import inv_T
+from syneepose import __version__, paths
 from syneepose.preset import Preset, load_preset
 from syneepose.robots.catalog import load_catalog
-from syneepose.transforms import inv_T
 
 # BOP methods (SAM-6D, FoundationPose, MegaPose) and bop_toolkit's eval scripts read `test` + test_targets.
 SPLIT = "test"
@@ -163,7 +164,7 @@ class TemplateJob:
 
     @property
     def folder(self) -> Path:
-        from syneepose.templates import set_dir
+        from kernel.template_set import set_dir
 
         return set_dir(Path(self.out), self.ee, self.views, self.inplane, self.resolution)
 

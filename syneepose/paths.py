@@ -7,7 +7,7 @@ from pathlib import Path
 
 import yaml
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 
 def assets_dir() -> Path:

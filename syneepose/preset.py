@@ -10,9 +10,9 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
+from kernel.errors import UserError
+from kernel.settings import Section, int_range, number_range, validate
 from syneepose import paths
-from syneepose.errors import UserError
-from syneepose.settings import Section, int_range, number_range, validate
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 SURFACE_KINDS = ("plain", "noise", "voronoi", "wave", "brick", "checker")  # Blender texture nodes (blender/scene.py)

@@ -12,14 +12,14 @@ import re
 import shutil
 from pathlib import Path
 
-from syneepose import bop
-from syneepose.errors import UserError
+from kernel import bop, files
+from kernel.errors import UserError
 from syneepose.jobs import Job
 
 # dataset_info.json keys of data sets from before per-segment settings, and the settings they stand for
 _LEGACY = {"seed": "seed", "frames_per_segment": "frames", "resolution": "resolution", "samples": "samples",
            "depth": "depth"}
-_TEMP = re.compile(r"^(tmp\w*\.exr|\..+\.tmp\d+)$")  # Blender's mkstemp EXRs, bop.write_atomic's temp names
+_TEMP = re.compile(r"^(tmp\w*\.exr|\..+\.tmp\d+)$")  # Blender's mkstemp EXRs, files.write_atomic's temp names
 _OWNED = re.compile(r"^\..+\.(?:tmp|overwritten)(\d+)$")  # staged models, dataset_info, scenes being cleared: by pid
 
 
@@ -38,7 +38,7 @@ def _has_files(scene_dir: Path) -> bool:
 def _scene_settings(scene_dir: Path, fallback: dict | None) -> dict | None:
     robot = scene_dir / "scene_robot.json"
     if robot.is_file():
-        record = bop.read_json(robot)
+        record = files.read_json(robot)
         if isinstance(record.get("settings"), dict):
             return record["settings"]
     return fallback

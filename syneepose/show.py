@@ -14,9 +14,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from syneepose.bop import read_frame, read_scene, scene_dirs, split_dir, write_png
-from syneepose.errors import UserError
-from syneepose.templates import read_index, read_template
+from kernel.bop import read_frame, read_scene, scene_dirs, split_dir
+from kernel.errors import UserError
+from kernel.files import write_png
+from kernel.template_set import read_index, read_template
 
 GT_COLOUR = (255, 230, 0)  # yellow: the ground-truth silhouette, here and in the pose overlays
 BACKGROUND = (32, 32, 32)

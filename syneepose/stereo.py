@@ -17,10 +17,10 @@ import cv2
 import numpy as np
 from pydantic import Field, field_validator
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.settings import Section, number_range, validate
+from kernel.transforms import make_T
 from syneepose.paths import named_yaml
-from syneepose.settings import Section, number_range, validate
-from syneepose.transforms import make_T
 
 SENSORS_DIR = Path(__file__).resolve().parents[1] / "scenes" / "sensors"
 DEPTH_MODES = ("exact", "stereo", "both")

@@ -6,8 +6,8 @@ import sys
 
 import pytest
 
+from kernel.errors import UserError
 from syneepose import paths
-from syneepose.errors import UserError
 from syneepose.robots import build as build_mod
 from syneepose.robots.catalog import Source, load_catalog
 from syneepose.robots.model import read_urdf

@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from syneepose import bop
-from syneepose.bop import Frame, SceneMeta, SceneWriter, gt_info, read_frame, read_scene
-from syneepose.errors import UserError
-from syneepose.transforms import make_T
+from kernel import bop, files
+from kernel.bop import Frame, SceneMeta, SceneWriter, gt_info, read_frame, read_scene
+from kernel.errors import UserError
+from kernel.transforms import make_T
 
 H, W = 24, 32
+
+OBJ_IDS = list(range(1, 7))  # the data set's objects, the COCO categories
 
 
 def _pose(rng) -> np.ndarray:
@@ -61,7 +63,7 @@ def _json(scene, name):
 def test_round_trip_three_frames(tmp_path):
     scene = tmp_path / "train_pbr" / "000007"
     meta = _meta()
-    writer = SceneWriter(scene, meta)
+    writer = SceneWriter(scene, meta, OBJ_IDS)
     frames = [_frame(i) for i in range(3)]
     for frame in frames:
         writer.write(frame)
@@ -113,7 +115,7 @@ def test_gt_info_known_answers(tmp_path):
 
     # The written record is gt_info of the written masks and depth.
     frame = _frame(0)
-    SceneWriter(tmp_path, _meta()).write(frame)
+    SceneWriter(tmp_path, _meta(), OBJ_IDS).write(frame)
     written = _json(tmp_path, "scene_gt_info")["0"][0]
     assert written == gt_info(frame.mask, frame.mask_visib, frame.depth)
     assert written["px_count_all"] == 11 * 14 and written["px_count_visib"] == 11 * 9
@@ -121,11 +123,11 @@ def test_gt_info_known_answers(tmp_path):
 
 def test_resume_keeps_written_frames(tmp_path):
     frames = [_frame(i) for i in range(3)]
-    first = SceneWriter(tmp_path, _meta())
+    first = SceneWriter(tmp_path, _meta(), OBJ_IDS)
     first.write(frames[0])
     first.write(frames[1])
 
-    again = SceneWriter(tmp_path, _meta())
+    again = SceneWriter(tmp_path, _meta(), OBJ_IDS)
     assert again.done(0) and again.done(1) and not again.done(2)
     again.write(frames[2])
     assert again.done(2)
@@ -138,11 +140,11 @@ def test_resume_keeps_written_frames(tmp_path):
 
 
 def test_leftover_temp_file_is_not_a_frame(tmp_path):
-    writer = SceneWriter(tmp_path, _meta())
+    writer = SceneWriter(tmp_path, _meta(), OBJ_IDS)
     writer.write(_frame(0))
     (tmp_path / "rgb" / ".000001.png.tmp123").write_bytes(b"half a png")
     (tmp_path / ".scene_gt.json.tmp123").write_text('{"1": [')
-    resumed = SceneWriter(tmp_path, _meta())
+    resumed = SceneWriter(tmp_path, _meta(), OBJ_IDS)
     assert resumed.done(0) and not resumed.done(1)
     assert read_scene(tmp_path)[1] == [0]
     with pytest.raises(UserError, match="frame 1"):
@@ -151,22 +153,22 @@ def test_leftover_temp_file_is_not_a_frame(tmp_path):
 
 def test_killed_between_json_writes_is_not_done(tmp_path, monkeypatch):
     """All images of frame 1 and some JSONs on disk, then a kill: frame 1 is not done and is redone."""
-    writer = SceneWriter(tmp_path, _meta())
+    writer = SceneWriter(tmp_path, _meta(), OBJ_IDS)
     writer.write(_frame(0))
-    real_write = bop.write_atomic
+    real_write = files.write_atomic
 
     def killed_at_gt_info(path, data):
         if path.name == "scene_gt_info.json":
             raise KeyboardInterrupt
         real_write(path, data)
 
-    monkeypatch.setattr(bop, "write_atomic", killed_at_gt_info)
+    monkeypatch.setattr(files, "write_atomic", killed_at_gt_info)
     with pytest.raises(KeyboardInterrupt):
         writer.write(_frame(1))
     monkeypatch.undo()
     assert (tmp_path / "rgb" / "000001.png").exists() and "1" in _json(tmp_path, "scene_gt")
 
-    resumed = SceneWriter(tmp_path, _meta())
+    resumed = SceneWriter(tmp_path, _meta(), OBJ_IDS)
     assert resumed.done(0) and not resumed.done(1)
     assert read_scene(tmp_path)[1] == [0]
     resumed.write(_frame(1))
@@ -176,7 +178,7 @@ def test_killed_between_json_writes_is_not_done(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("bad", [7.0, -0.5, np.nan])
 def test_depth_out_of_range(tmp_path, bad):
-    writer = SceneWriter(tmp_path, _meta())
+    writer = SceneWriter(tmp_path, _meta(), OBJ_IDS)
     frame = _frame(4)
     frame.depth[3, 3] = bad
     with pytest.raises(UserError, match=r"frame 4: depth .* 0\.\.6\.5535 m"):
@@ -185,7 +187,7 @@ def test_depth_out_of_range(tmp_path, bad):
 
 
 def test_mismatched_image_sizes(tmp_path):
-    writer = SceneWriter(tmp_path, _meta())
+    writer = SceneWriter(tmp_path, _meta(), OBJ_IDS)
     frame = _frame(5)
     frame.mask_visib = frame.mask_visib[:, :-1]
     with pytest.raises(UserError, match=r"frame 5: image sizes differ: .*depth \(24, 32\).*mask_visib \(24, 31\)"):
@@ -194,15 +196,15 @@ def test_mismatched_image_sizes(tmp_path):
 
 
 def test_scene_of_another_robot_is_refused(tmp_path):
-    SceneWriter(tmp_path, _meta()).write(_frame(0))
+    SceneWriter(tmp_path, _meta(), OBJ_IDS).write(_frame(0))
     before = (tmp_path / "scene_robot.json").read_text()
     with pytest.raises(UserError, match=r"ur5e\+robotiq_2f85.*not ur5e\+franka_hand"):
-        SceneWriter(tmp_path, _meta(ee="franka_hand"))
+        SceneWriter(tmp_path, _meta(ee="franka_hand"), OBJ_IDS)
     assert (tmp_path / "scene_robot.json").read_text() == before
 
 
 def test_read_missing_frame(tmp_path):
-    SceneWriter(tmp_path, _meta()).write(_frame(0))
+    SceneWriter(tmp_path, _meta(), OBJ_IDS).write(_frame(0))
     with pytest.raises(UserError, match=f"{re.escape(str(tmp_path))}.*frame 9"):
         read_frame(tmp_path, 9)
     with pytest.raises(UserError, match="no complete frame"):

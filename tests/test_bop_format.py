@@ -11,15 +11,18 @@ import pytest
 from pycocotools import mask as mask_utils
 from pycocotools.coco import COCO
 
-from syneepose import bop, jobs
-from syneepose.bop import Frame, SceneMeta, SceneWriter, split_dir, split_name, write_root_files
-from syneepose.errors import UserError
+from kernel import bop
+from kernel.bop import Frame, SceneMeta, SceneWriter, split_dir, split_name, write_root_files
+from kernel.errors import UserError
+from kernel.transforms import make_T
+from syneepose import jobs
 from syneepose.preset import load_preset
-from syneepose.transforms import make_T
+from syneepose.robots.catalog import load_catalog
 
 H, W, FRAMES = 12, 16, 12  # 12 frames: keys "10" and "11" sort before "2" as strings
 K = np.array([[20.0, 0.0, 7.5], [0.0, 20.0, 5.5], [0.0, 0.0, 1.0]])
 SCENE_JSONS = ("scene_camera", "scene_gt", "scene_gt_info", "scene_gt_coco", "scene_robot")
+OBJ_IDS = sorted(ee.obj_id for ee in load_catalog().end_effectors.values())  # as the renderer passes them
 
 
 def _meta(obj_id=2) -> SceneMeta:
@@ -45,7 +48,7 @@ def _frame(im_id: int) -> Frame:
 
 
 def _write(scene_dir, im_ids, obj_id=2):
-    writer = SceneWriter(scene_dir, _meta(obj_id))
+    writer = SceneWriter(scene_dir, _meta(obj_id), OBJ_IDS)
     for im_id in im_ids:
         writer.write(_frame(im_id))
 

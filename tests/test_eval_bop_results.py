@@ -5,8 +5,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from eval.bop_results import HEADER, BopResult, read_results, write_results
-from syneepose.errors import UserError
-from syneepose.transforms import make_T
+from kernel.errors import UserError
+from kernel.transforms import make_T
 
 ROW = "2,5,3,0.9,1 0 0 0 1 0 0 0 1,10 20 300,0.05"
 

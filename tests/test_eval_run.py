@@ -20,13 +20,15 @@ from eval.methods.base import Estimate
 from eval.metrics import WORKSPACE_POINTS, calibration_error
 from eval.model_points import MAX_QUERY
 from eval.records import read_errors
-from syneepose.bop import Frame, SceneMeta, SceneWriter, read_frame, read_scene, write_png
-from syneepose.errors import UserError
-from syneepose.transforms import make_T
+from kernel.bop import Frame, SceneMeta, SceneWriter, read_frame, read_scene
+from kernel.errors import UserError
+from kernel.files import write_png
+from kernel.transforms import make_T
 
 H, W, FRAMES = 12, 16, 4
 # scene id -> (arm, end-effector, obj_id)
 SCENES = {0: ("ur5e", "robotiq_2f85", 2), 1: ("panda", "kinova_3f", 4)}
+OBJ_IDS = list(range(1, 7))
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -40,7 +42,7 @@ def make_dataset(root: Path, assets: Path) -> Path:
         T_cam_base = make_T(Rotation.from_euler("xyz", [-2.0, 0.1, 0.3 * scene_id]).as_matrix(), [0.1, 0.2, 1.5])
         meta = SceneMeta(obj_id=obj_id, arm=arm, end_effector=ee, joint_names=[f"j{i}" for i in range(6)],
                          T_cam_base=T_cam_base)
-        writer = SceneWriter(root / "test" / f"{scene_id:06d}", meta)
+        writer = SceneWriter(root / "test" / f"{scene_id:06d}", meta, OBJ_IDS)
         for im_id in range(FRAMES):
             T_base_ee = make_T(Rotation.random(random_state=rng).as_matrix(), rng.uniform(-0.4, 0.4, 3) + [0, 0, 0.5])
             mask = np.zeros((H, W), bool)

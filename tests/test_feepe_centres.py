@@ -5,7 +5,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from feepe.centres import CentreTrack, calibration_starts, observed_centre
-from syneepose.transforms import make_T, rotation_angle, transform_points
+from kernel.transforms import make_T, rotation_angle, transform_points
 
 T_CAM_BASE = make_T(Rotation.from_euler("xyz", [-2.0, 0.3, 0.7]).as_matrix(), [0.1, -0.2, 1.4])
 

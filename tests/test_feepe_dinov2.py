@@ -8,7 +8,7 @@ import torch
 from feepe.backbones import get_backbone
 from feepe.backbones.dinov2 import Dinov2Backbone, convert_hub_state_dict, load_model
 from feepe.crop import Crop
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 
 def _tiny():

@@ -13,7 +13,7 @@ from feepe.memory import MemoryEntry, MemoryPool
 from feepe.optimize import OptimizeOptions, optimize, stack
 from feepe.pnp import solve_pnp
 from feepe.symmetry import consensus
-from syneepose.transforms import inv_T, make_T, rotation_angle, transform_points
+from kernel.transforms import inv_T, make_T, rotation_angle, transform_points
 
 K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
 

@@ -7,14 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from syneepose.templates import find_template_set
 from feepe.backbones import DEFAULT, get_backbone
 from feepe.estimator import Estimator, FeepeOptions
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
-from syneepose.bop import read_frame, read_scene, split_dir
-from syneepose.errors import UserError
-from syneepose.transforms import rotation_angle
+from kernel.bop import read_frame, read_scene, split_dir
+from kernel.errors import UserError
+from kernel.template_set import find_template_set
+from kernel.transforms import rotation_angle
 
 
 def _scene(root, ee):
@@ -57,7 +57,7 @@ def test_onboarding_cache_follows_the_template_images(bank_2f85, tmp_path):
     the same bytes written again (a new mtime) still hit."""
     import shutil
 
-    from syneepose.bop import read_png, write_png
+    from kernel.files import read_png, write_png
 
     bank, net, folder, *_ = bank_2f85
     copy = shutil.copytree(folder, tmp_path / folder.name)

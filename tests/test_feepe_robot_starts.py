@@ -6,7 +6,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from feepe.robot_starts import model_points, robot_starts
-from syneepose.transforms import inv_T, make_T, rotation_angle, transform_points
+from kernel.transforms import inv_T, make_T, rotation_angle, transform_points
 
 T_CAM_BASE = make_T(Rotation.from_euler("xyz", [-2.0, 0.3, 0.7]).as_matrix(), [0.1, -0.2, 1.4])
 

@@ -7,17 +7,17 @@ import numpy as np
 import pytest
 import trimesh
 
-from feepe.estimator import Estimator, FeepeOptions, RobotView, describe
 from feepe.backbones import DEFAULT, get_backbone
+from feepe.estimator import Estimator, FeepeOptions, RobotView, describe
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
 from feepe.optimize import _step
-from feepe.silhouette import (REUSE_PX, PartsSilhouette, SilhouetteModel, SilhouetteTerm, contour_term,
-                              image_motion_px, mask_view, mean_iou, sample, visible_contour)
-from syneepose.bop import read_frame, read_scene, split_dir
-from syneepose.errors import UserError
-from syneepose.templates import find_template_set
-from syneepose.transforms import inv_T, transform_points
+from feepe.silhouette import (REUSE_PX, PartsSilhouette, SilhouetteModel, SilhouetteTerm, contour_term, image_motion_px,
+                              mask_view, mean_iou, sample, visible_contour)
+from kernel.bop import read_frame, read_scene, split_dir
+from kernel.errors import UserError
+from kernel.template_set import find_template_set
+from kernel.transforms import inv_T, transform_points
 
 K = np.array([[300.0, 0, 80], [0, 300.0, 60], [0, 0, 1]])
 

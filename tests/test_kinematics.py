@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.transforms import make_T
 from syneepose.robots.kinematics import Kinematics
 from syneepose.robots.model import Joint, Link, Mimic, RobotModel, read_urdf, write_urdf
-from syneepose.transforms import make_T
 
 
 def _two_link(mimic=None):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from eval.mask_noise import MaskNoise, frame_rng, mask_noise, perturb
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 
 def _gripper_mask() -> np.ndarray:

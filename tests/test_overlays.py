@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 
 from eval.overlays import EST_COLOUR, contour_points, draw_pose, load_mesh, silhouette, zoom
-from syneepose.bop import read_frame, read_scene, split_dir
+from kernel.bop import read_frame, read_scene, split_dir
+from kernel.transforms import make_T
 from syneepose.show import GT_COLOUR
-from syneepose.transforms import make_T
 
 
 def _frames(root):

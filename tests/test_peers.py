@@ -7,9 +7,9 @@ from scipy.spatial.transform import Rotation
 from eval.handeye import METHODS, BoardDetector, calibrate
 from eval.ppf import PpfDetector
 from feepe.icp import SurfaceModel
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.transforms import inv_T, make_T, rotation_angle, transform_points
 from syneepose.scene.marker import MarkerBoard, board_pose, mount_facing_camera
-from syneepose.transforms import inv_T, make_T, rotation_angle, transform_points
 
 
 def _random_T(rng, spread=0.3):

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from syneepose.bop import read_frame, read_scene, split_dir
+from kernel.bop import read_frame, read_scene, split_dir
+from kernel.transforms import transform_points
 from syneepose.robots.robot import load_robot
-from syneepose.transforms import transform_points
 
 # One configuration per end-effector, the arms rotating through.
 CONFIGS = ["panda+panda_hand", "ur5e+robotiq_2f85", "ur10e+robotiq_2f140", "panda+kinova_3f",
@@ -266,7 +266,7 @@ def test_bad_preset_key_and_unwritable_out(tmp_path):
 
 
 def test_templates_reproject_onto_their_masks(tmp_path, assets):
-    from syneepose.templates import read_index, read_template, set_dir
+    from kernel.template_set import read_index, read_template, set_dir
 
     proc = subprocess.run([sys.executable, "-m", "syneepose", "templates", "--out", str(tmp_path), "--ee",
                            "robotiq_2f85,kinova_3f", "--views", "3", "--inplane", "2", "--resolution", "48",

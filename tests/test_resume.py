@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from syneepose.bop import split_dir
+from kernel.bop import split_dir
 
 ROBOT = "ur5e+robotiq_2f85"
 TINY = ["--preset", "mini", "--resolution", "64x48", "--samples", "2", "--segments", "1", "--frames", "2",

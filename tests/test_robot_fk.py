@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
+from kernel.transforms import inv_T, rotation_angle
 from syneepose import paths
 from syneepose.robots.catalog import EndEffector, load_catalog
 from syneepose.robots.kinematics import Kinematics
 from syneepose.robots.model import read_urdf
 from syneepose.robots.sources import ensure_source
-from syneepose.transforms import inv_T, rotation_angle
 from tests.mujoco_reference import link_frames, random_qpos, reference_model
 
 PARTS = list(load_catalog().arms) + list(load_catalog().end_effectors)

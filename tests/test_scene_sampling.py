@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.transforms import inv_T, transform_points
 from syneepose.jobs import make_jobs, parse_shard
 from syneepose.preset import load_preset, parse_preset
 from syneepose.scene.motion import min_jerk, trajectory
 from syneepose.scene.sample import kelvin_to_rgb, look_at, rng_for
 from syneepose.templates import fibonacci_sphere, poses
-from syneepose.transforms import inv_T, transform_points
 
 
 def test_look_at_points_the_optical_axis():
@@ -120,8 +120,8 @@ def test_planned_segment_meets_every_rule(ur5e_checks):
 
 def test_stations_show_the_whole_board_face_on_and_spread_apart(ur5e_checks):
     """The fair marker peer's stations: every rule holds in every frame, and the same seed plans the same."""
+    from kernel.transforms import rotation_angle
     from syneepose.scene.marker import facing
-    from syneepose.transforms import rotation_angle
 
     robot, checks = ur5e_checks
     preset = load_preset("targeting-stations")

@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from syneepose.bop import read_frame, read_scene, split_dir
+from kernel.bop import read_frame, read_scene, split_dir
+from kernel.transforms import make_T
 from syneepose.stereo import load_profile, refine_disparity, stereo_depth, to_rgb_camera
-from syneepose.transforms import make_T
 
 PLANE_SCRIPT = """
 import sys, numpy as np
@@ -20,7 +20,7 @@ from syneepose.blender import scene as bscene
 from syneepose.blender.stereo import IrRig
 from syneepose.scene.spec import Plane, Surface
 from syneepose.stereo import load_profile, stereo_depth, to_rgb_camera
-from syneepose.transforms import make_T
+from kernel.transforms import make_T
 W, H, dist, out = 320, 240, float(sys.argv[1]), sys.argv[2]
 f = W / 2 / np.tan(np.deg2rad(30))
 K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1.0]])

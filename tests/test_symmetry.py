@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from kernel.transforms import make_T
 from syneepose import paths
 from syneepose.robots.catalog import load_catalog
 from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.symmetry import check_symmetry, diameter, symmetry_error
-from syneepose.transforms import make_T
 
 EES = list(load_catalog().end_effectors)
 CLAIMED = [(n, a, o) for n in EES for a, o in load_catalog().end_effector(n).symmetries]

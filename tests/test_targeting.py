@@ -9,9 +9,9 @@ import pytest
 import yaml
 
 from eval.handeye import BoardDetector
-from syneepose.bop import read_frame, read_scene, split_dir
+from kernel.bop import read_frame, read_scene, split_dir
+from kernel.transforms import rotation_angle
 from syneepose.scene.marker import MarkerBoard
-from syneepose.transforms import rotation_angle
 
 CONFIG = "ur5e+robotiq_2f85"
 

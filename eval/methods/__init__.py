@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import importlib
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 BUILTIN = {"bop-csv": "eval.methods.bop_csv", "feepe": "eval.methods.feepe", "handeye": "eval.methods.handeye",
            "ppf": "eval.methods.ppf"}

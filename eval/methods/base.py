@@ -9,7 +9,7 @@ from typing import Protocol
 
 import numpy as np
 
-from syneepose.bop import SceneMeta
+from kernel.bop import SceneMeta
 
 
 @dataclass

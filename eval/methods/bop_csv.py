@@ -8,8 +8,9 @@ from pathlib import Path
 from eval.bop_results import BopResult, read_results
 from eval.methods import register
 from eval.methods.base import Estimate, Observation
-from syneepose.bop import SceneMeta, read_json
-from syneepose.errors import UserError
+from kernel.bop import SceneMeta
+from kernel.errors import UserError
+from kernel.files import read_json
 
 
 @register("bop-csv")

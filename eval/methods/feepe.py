@@ -23,9 +23,10 @@ from feepe.candidates import SingleFrameOptions
 from feepe.estimator import Estimator, FeepeOptions, RobotView, describe, load_models
 from feepe.onboarding import onboard
 from feepe.silhouette import SilhouetteModel
-from syneepose.bop import SceneMeta
-from syneepose.errors import UserError
-from syneepose.templates import find_template_set
+from kernel.bop import SceneMeta
+from kernel.errors import UserError
+from kernel.template_set import find_template_set
+
 
 @register("feepe")
 class Feepe:

@@ -15,8 +15,8 @@ import numpy as np
 from eval.handeye import METHODS, BoardDetector, calibrate
 from eval.methods import register
 from eval.methods.base import Estimate, Observation
-from syneepose.bop import SceneMeta
-from syneepose.errors import UserError
+from kernel.bop import SceneMeta
+from kernel.errors import UserError
 from syneepose.scene.marker import MarkerBoard
 
 

@@ -12,7 +12,7 @@ from eval.methods import register
 from eval.methods.base import Estimate, Observation
 from eval.ppf import PpfDetector, PpfOptions, scene_cloud
 from feepe.icp import SurfaceModel
-from syneepose.bop import SceneMeta
+from kernel.bop import SceneMeta
 
 
 @register("ppf")

@@ -3,7 +3,7 @@ DINOv2 (`dinov2_vits14`, `dinov2_vitl14`, ... with `_reg` variants) from local w
 
 from __future__ import annotations
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 DEFAULT = "sift+normals+color"  # chosen by measurement on mini (README, "Weight-free backbone")
 DINOV2_NAMES = tuple(f"dinov2_vit{s}14{r}" for s in "sblg" for r in ("", "_reg"))

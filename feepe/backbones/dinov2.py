@@ -22,7 +22,7 @@ import numpy as np
 
 from feepe.backbones.base import PatchFeatures, eroded, unit_rows
 from feepe.crop import Crop
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 # name -> (HF repo id, hidden size, blocks, heads, swiglu)
 ARCH = {"s": ("small", 384, 12, 6, False), "b": ("base", 768, 12, 12, False),

@@ -1,7 +1,7 @@
 """The only bpy code of the project: build a Blender scene from a plain scene description, render
 it with Cycles and hand back numpy arrays. Import its modules only inside render worker processes."""
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 try:
     import bpy  # noqa: F401 - loaded here once, so a broken install is one line, not a worker traceback

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from syneepose.bop import write_atomic
-from syneepose.cli import run_command
-from syneepose.errors import UserError
+from kernel.cli import run_command
+from kernel.errors import UserError
+from kernel.files import write_atomic
+from kernel.transforms import make_T
 from syneepose.scene.spec import Plane, Surface
 from syneepose.stereo import load_profile, stereo_depth, to_rgb_camera
-from syneepose.transforms import make_T
 
 INTEL_SUBPIXEL = 0.08  # px, Intel's typical subpixel RMS for the D4xx on a textured flat target
 

@@ -16,8 +16,8 @@ import bpy
 import numpy as np
 import trimesh
 
+from kernel.errors import UserError
 from syneepose.blender.exr import read_passes, srgb_to_linear
-from syneepose.errors import UserError
 from syneepose.robots.model import RobotModel
 from syneepose.scene.marker import MarkerBoard
 from syneepose.scene.spec import Distractor, Light, Plane, Surface

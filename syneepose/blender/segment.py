@@ -7,14 +7,15 @@ from pathlib import Path
 
 import numpy as np
 
+from kernel.bop import Frame, SceneMeta, SceneWriter
+from kernel.transforms import inv_T
 from syneepose.blender import scene as bscene
-from syneepose.blender.stereo import IrRig
 from syneepose.blender.exr import linear_to_srgb8
-from syneepose.bop import Frame, SceneMeta, SceneWriter
+from syneepose.blender.stereo import IrRig
+from syneepose.robots.catalog import load_catalog
 from syneepose.robots.robot import Robot
 from syneepose.scene.spec import SegmentSpec
 from syneepose.stereo import stereo_depth, to_rgb_camera
-from syneepose.transforms import inv_T
 
 MAX_DEPTH = 65535 * 0.1 / 1000.0  # metres: the uint16 depth PNG range at depth_scale 0.1; beyond -> 0,
 # as a real sensor reports out-of-range depth (Cycles writes 1e10 where a ray hits nothing)
@@ -39,7 +40,8 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
         joint_names=list(robot.arm.joints), T_cam_base=inv_T(spec.T_base_cam),
         marker=spec.marker.to_json() if spec.marker is not None else None,
         depth_sensor={"mode": spec.depth_mode, "profile": spec.sensor.source} if spec.sensor is not None else None,
-        links=[*bscene.arm_links(robot.model, set(robot.ee_links)), robot.ee_root], settings=settings))
+        links=[*bscene.arm_links(robot.model, set(robot.ee_links)), robot.ee_root], settings=settings),
+        obj_ids=[ee.obj_id for ee in load_catalog().end_effectors.values()])
     todo = [i for i in range(spec.n_frames) if not writer.done(i)]
     if not todo:
         return 0

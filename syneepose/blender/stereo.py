@@ -13,10 +13,10 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from kernel.transforms import make_T
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import read_passes
 from syneepose.stereo import SensorProfile, dot_pattern, ir_to_gray
-from syneepose.transforms import make_T
 
 
 def _projector(profile: SensorProfile, pattern: np.ndarray):

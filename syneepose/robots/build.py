@@ -21,8 +21,8 @@ from pathlib import Path
 import trimesh
 from filelock import FileLock
 
+from kernel.errors import UserError
 from syneepose import paths
-from syneepose.errors import UserError
 from syneepose.robots import ee_models
 from syneepose.robots.catalog import Catalog, Part, load_catalog
 from syneepose.robots.model import read_urdf, write_urdf
@@ -33,7 +33,7 @@ from syneepose.robots.sources import ensure_source
 
 STAMP = ".build.json"
 _HERE = Path(__file__).parent
-CONVERTER_CODE = ["model.py", "mjcf.py", "urdf_source.py", "parts.py", "../transforms.py"]
+CONVERTER_CODE = ["model.py", "mjcf.py", "urdf_source.py", "parts.py", "../../kernel/transforms.py"]
 ASSEMBLY_CODE = ["robot.py"]
 MODEL_CODE = ["ee_models.py", "symmetry.py"]
 MODEL_EVAL_CODE = ["models_eval.py", "../blender/remesh.py"]

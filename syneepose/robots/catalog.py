@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from syneepose.errors import UserError
-from syneepose.settings import comma_list
+from kernel.errors import UserError
+from kernel.settings import comma_list
+from kernel.transforms import xyz_rpy_to_T
 from syneepose.robots.model import Mimic
-from syneepose.transforms import xyz_rpy_to_T
 
 CATALOG_PATH = Path(__file__).with_name("catalog.yaml")
 

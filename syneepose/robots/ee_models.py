@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 from syneepose.robots.catalog import EndEffector
 from syneepose.robots.kinematics import Kinematics
 from syneepose.robots.model import RobotModel, read_urdf

@@ -11,9 +11,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.transforms import axis_angle_to_R
 from syneepose.robots.model import RobotModel
-from syneepose.transforms import axis_angle_to_R
 
 
 class Kinematics:

@@ -16,9 +16,9 @@ from xml.etree import ElementTree as ET
 import numpy as np
 import trimesh
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.transforms import inv_T, make_T
 from syneepose.robots.model import Joint, Link, RobotModel, Visual
-from syneepose.transforms import inv_T, make_T
 
 
 def patched_mjcf(path: Path, compiler_angle: str | None = None) -> Path:

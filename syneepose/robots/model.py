@@ -13,8 +13,8 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 
-from syneepose.errors import UserError
-from syneepose.transforms import R_to_rpy
+from kernel.errors import UserError
+from kernel.transforms import R_to_rpy
 
 JOINT_TYPES = ("fixed", "revolute", "continuous", "prismatic")
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 from syneepose.robots.catalog import EndEffector
 from syneepose.robots.ee_models import model_info, write_json, write_ply_mm
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 from syneepose.robots.catalog import Arm, EndEffector, Part
 from syneepose.robots.mjcf import read_mjcf
 from syneepose.robots.model import RobotModel

@@ -11,13 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
+from kernel.errors import UserError
+from kernel.transforms import inv_T
 from syneepose import paths
-from syneepose.errors import UserError
 from syneepose.robots.catalog import Arm, EndEffector, load_catalog
 from syneepose.robots.kinematics import Kinematics
 from syneepose.robots.model import Joint, RobotModel, read_urdf
 from syneepose.robots.parts import EE_ROOT
-from syneepose.transforms import inv_T
 
 MOUNT_JOINT = "flange_to_ee_mount"
 

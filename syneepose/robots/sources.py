@@ -17,7 +17,7 @@ from pathlib import Path
 
 from filelock import FileLock
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 from syneepose.robots.catalog import Source
 
 

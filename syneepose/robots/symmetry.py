@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from syneepose.transforms import axis_angle_to_R, make_T, transform_points
+from kernel.transforms import axis_angle_to_R, make_T, transform_points
 
 AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": np.array([0.0, 0.0, 1.0])}
 CONTINUOUS_STEPS = 36  # a continuous symmetry must hold at every 10 deg step

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.transforms import make_T, transform_points
 from syneepose.robots.model import Joint, Link, RobotModel, Visual, read_urdf
-from syneepose.transforms import make_T, transform_points
 
 
 def _resolve(filename: str, urdf_dir: Path, packages: dict[str, Path]) -> Path:

@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.transforms import make_T
 from syneepose.preset import Marker, Preset
-from syneepose.transforms import make_T
 
 
 @dataclass

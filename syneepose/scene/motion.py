@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from kernel.transforms import inv_T, transform_points
 from syneepose.robots.model import read_urdf
-from syneepose.transforms import inv_T, transform_points
 
 
 def min_jerk(s: np.ndarray) -> np.ndarray:

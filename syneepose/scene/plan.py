@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 from syneepose.preset import Preset
 from syneepose.scene.motion import MotionChecks, trajectory
 from syneepose.scene.sample import rng_for, sample_segment

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from kernel.transforms import make_T
 from syneepose.preset import Preset
 from syneepose.scene.spec import Distractor, Light, Plane, SegmentSpec, Surface
-from syneepose.transforms import make_T
 
 
 def rng_for(seed: int, config: str, scene_id: int) -> np.random.Generator:

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
+from kernel.transforms import inv_T, rotation_angle, transform_points
 from syneepose.preset import Preset
 from syneepose.scene.marker import MarkerBoard, board_from_preset, board_pose, facing
 from syneepose.scene.motion import MotionChecks
 from syneepose.scene.sample import rng_for, sample_segment
 from syneepose.scene.spec import SegmentSpec
-from syneepose.transforms import inv_T, rotation_angle, transform_points
 
 MAX_CAMERAS, YAW_STEPS = 20, 72
 

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 
 def _interrupt(signum, frame):

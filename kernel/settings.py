@@ -12,7 +12,7 @@ from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
-from syneepose.errors import UserError
+from kernel.errors import UserError
 
 
 class Section(BaseModel):

@@ -6,16 +6,15 @@ test_targets_bop19/24.json) are derived from the scenes present, so any order of
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from syneepose.errors import UserError
-from syneepose.robots.catalog import load_catalog
-from syneepose.transforms import make_T
+from kernel.errors import UserError
+from kernel.files import read_json, read_png, write_atomic, write_json, write_png
+from kernel.transforms import make_T
 
 GT_ID = 0  # one object (the end-effector) per frame
 DEPTH_SCALE = 0.1  # mm per depth PNG unit
@@ -73,46 +72,8 @@ def _image_paths(scene_dir: Path, im_id: int, robot: dict | None = None) -> dict
     return paths
 
 
-def write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    except BaseException:  # a full disk or a kill mid-write: no temp file stays behind
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-def write_png(path: Path, image: np.ndarray) -> None:
-    """Encoded in memory: cv2.imwrite picks the format from the extension, which the temp name lacks."""
-    _, buf = cv2.imencode(".png", image)
-    write_atomic(path, buf.tobytes())
-
-
-def read_png(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise UserError(f"{path}: not a readable PNG; delete the scene folder and write it again")
-    return image
-
-
 def _floats(a) -> list[float]:
     return np.asarray(a, dtype=float).ravel().tolist()
-
-
-def read_json(path: Path, fix: str = "delete the scene folder and write it again", kind: type | None = dict):
-    """A JSON file that a kill, a full disk or a hand edit may have broken: one line naming it. `kind`: what
-    the top level must be (None: anything)."""
-    try:
-        content = json.loads(Path(path).read_text())
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read ({exc.strerror})") from None
-    except ValueError as exc:
-        raise UserError(f"{path}: not valid JSON ({exc}); {fix}") from None
-    if kind is not None and not isinstance(content, kind):
-        wanted = "an object" if kind is dict else f"a {kind.__name__}"
-        raise UserError(f"{path}: holds a {type(content).__name__}, not {wanted}; {fix}")
-    return content
 
 
 def read_dataset_info(root: Path) -> dict:
@@ -167,20 +128,6 @@ def _check_fields(paths: dict[str, Path], records: dict[str, dict]) -> None:
             raise bad("scene_robot", key, "T_base_ee")
         if not isinstance(rec.get("joint_positions"), list):
             raise bad("scene_robot", key, "joint_positions")
-
-
-def _ordered(obj):
-    """Dict keys in a fixed order, frame ids ("0", "1", ..., "10") as integers: BOP files run 0, 1, 2, ..."""
-    if isinstance(obj, dict):
-        keys = sorted(obj, key=lambda k: (0, int(k), "") if k.isdigit() else (1, 0, k))
-        return {k: _ordered(obj[k]) for k in keys}
-    if isinstance(obj, list):
-        return [_ordered(v) for v in obj]
-    return obj
-
-
-def write_json(path: Path, content, indent: int | None = 2) -> None:
-    write_atomic(path, json.dumps(_ordered(content), indent=indent).encode())
 
 
 def _complete(scene_dir: Path, records: dict[str, dict], im_id: int) -> bool:
@@ -292,9 +239,11 @@ def _depth_png(frame: Frame, depth_scale: float) -> np.ndarray:
 
 
 class SceneWriter:
-    """Writes the frames of one scene; a new writer on an existing folder resumes it (skip `done` frames)."""
+    """Writes the frames of one scene; a new writer on an existing folder resumes it (skip `done` frames).
+    `obj_ids`: every object of the data set, the categories of scene_gt_coco.json (as calc_gt_coco.py lists
+    them), so each scene names the same categories whichever object it shows."""
 
-    def __init__(self, scene_dir: Path, meta: SceneMeta):
+    def __init__(self, scene_dir: Path, meta: SceneMeta, obj_ids: list[int]):
         self.scene_dir, self.meta = Path(scene_dir), meta
         self._records = _load_records(self.scene_dir)
         robot = self._records["scene_robot"]
@@ -328,7 +277,7 @@ class SceneWriter:
                 raise UserError(f"{len(meta.links)} robot parts do not fit the uint8 {LINK_IDS_DIR}/ images (255 at most)")
             self._records["scene_robot"]["links"] = list(meta.links)
         self._coco = _load_coco(self.scene_dir, self._records)
-        self._obj_ids = sorted(ee.obj_id for ee in load_catalog().end_effectors.values())
+        self._obj_ids = sorted(obj_ids)
         for path in _image_paths(self.scene_dir, 0, self._records["scene_robot"]).values():
             path.parent.mkdir(parents=True, exist_ok=True)
 

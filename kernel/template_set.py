@@ -1,0 +1,110 @@
+"""A FEEPE template set on disk: one folder per end-effector, `<ee>_<views>x<inplane>_<res>px/`, holding
+`rgb/`, `depth/`, `mask/` (`<id:06d>.png`, depth in `depth_scale` mm units, 0 off the object) and
+`templates.json` ({id: view, inplane, cam_K, T_cam_model (metres), depth_scale, obj_id, samples}).
+The generator writes sets (`python -m syneepose templates`); the estimator only reads them."""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from kernel.bop import DEPTH_SCALE
+from kernel.errors import UserError
+from kernel.files import read_json, read_png, write_atomic, write_png
+
+INDEX = "templates.json"
+
+
+@dataclass
+class Template:
+    id: int
+    view: int
+    inplane: int
+    K: np.ndarray
+    T_cam_model: np.ndarray
+    rgb: np.ndarray
+    depth: np.ndarray  # metres, 0 off the object
+    mask: np.ndarray
+
+
+def set_dir(root: Path, ee: str, n_views: int, n_inplane: int, resolution: int) -> Path:
+    return Path(root) / "templates" / f"{ee}_{n_views}x{n_inplane}_{resolution}px"
+
+
+_SET = re.compile(r"^(?P<ee>.+)_(?P<views>\d+)x(?P<inplane>\d+)_(?P<res>\d+)px$")
+
+
+def find_template_set(root: Path, ee: str, n_templates: int | None) -> Path:
+    """The set of `ee` under a templates folder (`set_dir` names): `n_templates` of them, or the largest
+    count, then the largest resolution."""
+    sets = []
+    for p in sorted(Path(root).glob(f"{ee}_*")):
+        m = _SET.match(p.name)
+        if m and m["ee"] == ee and (p / INDEX).is_file():
+            sets.append((int(m["views"]) * int(m["inplane"]), int(m["res"]), p))
+    if n_templates is not None:
+        sets = [s for s in sets if s[0] == n_templates]
+    if not sets:
+        wanted = f"{n_templates} templates" if n_templates else "templates"
+        raise UserError(f"no {wanted} for {ee} in {root}; render them with `python -m syneepose templates --out "
+                        f"DATASET --ee {ee}` (--views x --inplane = the count)")
+    return max(sets)[2]
+
+
+def read_index(folder: Path) -> dict:
+    path = Path(folder) / INDEX
+    if not path.is_file():
+        raise UserError(f"no template set at {folder}: render it with `python -m syneepose templates`")
+    return read_json(path, "delete the template set folder and render it again")
+
+
+def check_samples(folder: Path, samples: int) -> None:
+    """A set is rendered with one sample count: a rerun that asks for another would mix two noise levels."""
+    if not (Path(folder) / INDEX).is_file():
+        return
+    other = sorted({r["samples"] for r in read_index(folder).values() if r.get("samples", samples) != samples})
+    if other:
+        raise UserError(f"{folder} was rendered with --samples {other[0]}, not {samples}; rerun with --samples "
+                        f"{other[0]} to resume, or delete the folder to render it again")
+
+
+def read_template(folder: Path, template_id: int, index: dict | None = None) -> Template:
+    """One template; pass the set's `read_index` when reading many, so the index is parsed once."""
+    index = read_index(folder) if index is None else index
+    rec = index.get(str(template_id))
+    if rec is None:
+        raise UserError(f"{folder}: no template {template_id}")
+    name = f"{template_id:06d}.png"
+    rgb = read_png(Path(folder) / "rgb" / name)[..., ::-1]
+    return Template(template_id, rec["view"], rec["inplane"], np.array(rec["cam_K"]).reshape(3, 3),
+                    np.array(rec["T_cam_model"]), np.ascontiguousarray(rgb),
+                    read_png(Path(folder) / "depth" / name) * (rec["depth_scale"] / 1000.0),
+                    read_png(Path(folder) / "mask" / name) > 127)
+
+
+class TemplateSetWriter:
+    """Adds templates to a set, resumable: images first, then the index, so the index names only whole
+    templates; `done(id)` says which a killed run finished."""
+
+    def __init__(self, folder: Path, obj_id: int, samples: int):
+        self.folder, self.obj_id, self.samples = Path(folder), obj_id, samples
+        self.index = read_index(self.folder) if (self.folder / INDEX).is_file() else {}
+        for sub in ("rgb", "depth", "mask"):
+            (self.folder / sub).mkdir(parents=True, exist_ok=True)
+
+    def done(self, template_id: int) -> bool:
+        return str(template_id) in self.index
+
+    def write(self, template: Template) -> None:
+        name = f"{template.id:06d}.png"
+        write_png(self.folder / "rgb" / name, np.ascontiguousarray(template.rgb[..., ::-1]))
+        write_png(self.folder / "depth" / name, np.round(template.depth * 1000.0 / DEPTH_SCALE).astype(np.uint16))
+        write_png(self.folder / "mask" / name, template.mask.astype(np.uint8) * 255)
+        self.index[str(template.id)] = {"view": template.view, "inplane": template.inplane,
+                                        "cam_K": template.K.ravel().tolist(), "T_cam_model": template.T_cam_model.tolist(),
+                                        "depth_scale": DEPTH_SCALE, "obj_id": self.obj_id, "samples": self.samples}
+        write_atomic(self.folder / INDEX, json.dumps(self.index, indent=2, sort_keys=True).encode())
