@@ -1,0 +1,3 @@
+"""The shared kernel: file formats (the BOP data-set layout, template sets), rigid transforms, whole-file
+writes and the user-error type. The generator (`syneepose`), the estimator (`feepe`) and the evaluator
+(`eval`) import it; it imports none of them, so FEEPE runs on a camera's frames without the generator."""
