@@ -16,7 +16,7 @@ from eval.methods.feepe import arm_models, robot_view
 from feepe.backbones import DEFAULT, get_backbone
 from feepe.estimator import REFINEMENTS, Estimator, FeepeOptions, load_models
 from feepe.onboarding import onboard
-from kernel.bop import read_frame, read_scene, scene_dirs, split_dir
+from kernel.dataset import Dataset
 from kernel.template_set import find_template_set
 
 STAGES = ("backbone", "retrieval", "matching", "pnp", "optimisation", "refinement", "robot_starts", "total")
@@ -32,29 +32,28 @@ def main() -> None:
     parser.add_argument("--silhouette", default="ee", choices=["ee", "robot"],
                         help="robot: the refinement fits the robot's outline (needs robot_mask_visib/)")
     args = parser.parse_args()
-    root = Path(args.dataset)
+    dataset = Dataset(Path(args.dataset))
     net = get_backbone(args.backbone)
-    scenes = list(scene_dirs(split_dir(root)).values())
     timings, banks = [], {}
     with tempfile.TemporaryDirectory() as cache:
-        for scene in scenes:
-            meta, im_ids = read_scene(scene)
+        for scene in dataset.scenes():
+            meta = scene.meta
             ee = meta.end_effector
             if ee not in banks:
-                folder = find_template_set(args.templates_dir or root / "templates", ee, None)
+                folder = find_template_set(args.templates_dir or dataset.templates_dir, ee, None)
                 banks[ee] = onboard(folder, net, cache_dir=Path(cache))
                 print(f"onboarding {folder.name}: {banks[ee].seconds:.1f} s, {len(banks[ee].uv)} features")
             opts = FeepeOptions(variant="D", refine=args.refine, silhouette=args.silhouette)
-            est = Estimator(banks[ee], net, opts, *load_models(root / "models" / f"obj_{meta.obj_id:06d}.ply", opts))
+            est = Estimator(banks[ee], net, opts, *load_models(dataset.model_path(meta.obj_id), opts))
             arm = arm_models(meta) if args.silhouette == "robot" else None
             est.reset(arm=arm[2] if arm else None)
-            for im_id in im_ids[: args.frames or None]:
-                f = read_frame(scene, im_id)
+            for im_id in scene.im_ids[: args.frames or None]:
+                f = scene.frame(im_id)
                 view = robot_view(arm, f.link_ids > 0, f.joint_positions) if arm else None
                 timings.append(est.step(f.rgb, f.depth, f.mask_visib, f.K, f.T_base_ee, view).timings)
     mean = {s: float(np.mean([t.get(s, 0.0) for t in timings])) for s in STAGES}
     non_backbone = mean["total"] - mean["backbone"]
-    print(f"{args.backbone}, variant D, refine {args.refine} ({args.silhouette}), {len(timings)} frames of {root}: "
+    print(f"{args.backbone}, variant D, refine {args.refine} ({args.silhouette}), {len(timings)} frames of {dataset.root}: "
           + ", ".join(f"{s} {mean[s]:.1f}" for s in STAGES) + f" ms/frame; everything but the backbone "
           f"{non_backbone:.1f} ms/frame")
 

@@ -17,24 +17,23 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from eval.plots import save_figure
-from kernel.bop import read_frame, read_scene, scene_dirs, split_dir
 from kernel.cli import run_command
+from kernel.dataset import Dataset
 from kernel.errors import UserError
 
 
 def ee_depth_errors(root: Path) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Per end-effector: signed errors (m) where both depths exist, and the share of pixels with no sensor depth."""
     errors, holes = defaultdict(list), defaultdict(list)
-    for scene in scene_dirs(split_dir(root)).values():
-        meta, ids = read_scene(scene)
-        if meta.depth_sensor is None:
-            raise UserError(f"{scene}: exact depth only; render with --depth stereo to compare a sensor's depth")
-        for i in ids:
-            f = read_frame(scene, i)
+    for scene in Dataset(root).scenes():
+        if scene.meta.depth_sensor is None:
+            raise UserError(f"{scene.path}: exact depth only; render with --depth stereo to compare a sensor's depth")
+        for i in scene.im_ids:
+            f = scene.frame(i)
             ee = f.mask_visib & (f.depth_gt > 0)
             both = ee & (f.depth > 0)
-            errors[meta.end_effector].append(f.depth[both] - f.depth_gt[both])
-            holes[meta.end_effector].append((ee.sum(), (ee & (f.depth == 0)).sum()))
+            errors[scene.meta.end_effector].append(f.depth[both] - f.depth_gt[both])
+            holes[scene.meta.end_effector].append((ee.sum(), (ee & (f.depth == 0)).sum()))
     if not errors:
         raise UserError(f"{root}: no scenes; give the root of a data set rendered with --depth stereo")
     return ({ee: np.concatenate(e) for ee, e in errors.items()},

@@ -22,10 +22,10 @@ import numpy as np
 import trimesh
 
 from eval.metrics import KDTree, model_tree
+from kernel.dataset import MODELS_EVAL, Dataset
 from kernel.errors import UserError
 from kernel.files import read_json
 
-MODELS_EVAL = "models_eval"
 MAX_QUERY = 1000  # cells, one query vertex drawn in each per frame: tests/test_eval_metrics.py, benchmarks/
 QUERY_SEED = 0  # with the frame's key, seeds the frame's draw: a frame scores the same whatever is scored with it
 QUERY_RULE = {"models": MODELS_EVAL, "max_query": MAX_QUERY, "query": "one vertex drawn per grid cell and frame",
@@ -110,8 +110,8 @@ def symmetries_m(info: dict) -> list[np.ndarray]:
 
 
 def load_eval_model(dataset: Path, obj_id: int, max_query: int | None = MAX_QUERY) -> EvalModel:
-    folder = Path(dataset) / MODELS_EVAL
-    ply, info_path = folder / f"obj_{obj_id:06d}.ply", folder / "models_info.json"
+    layout = Dataset(Path(dataset))
+    ply, info_path = layout.eval_model_path(obj_id), layout.models_eval_dir / "models_info.json"
     for path in (ply, info_path):
         if not path.is_file():
             raise UserError(f"{path}: missing; pose errors are computed on the data set's {MODELS_EVAL}/ (BOP); "

@@ -24,6 +24,7 @@ from eval.bop_results import read_results
 from eval.records import FrameErrors, read_errors
 from kernel.bop import read_frame, split_name
 from kernel.cli import output_dir, run_command
+from kernel.dataset import Dataset
 from kernel.errors import UserError
 from kernel.files import read_json, write_atomic, write_png
 from syneepose.show import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
@@ -136,7 +137,7 @@ class ResultFolder:
         """The overlay of one frame, a zoom on the ground truth beside it and a caption line under both."""
         row = self.errors[scene_id, im_id]
         frame = read_frame(self.dataset / self.split / f"{scene_id:06d}", im_id)
-        mesh = load_mesh(self.dataset / "models" / f"obj_{row.obj_id:06d}.ply")
+        mesh = load_mesh(Dataset(self.dataset).model_path(row.obj_id))
         T_est = self.estimates.get((scene_id, im_id))
         image = side_by_side([draw_pose(frame.rgb, frame.mask, frame.K, mesh, T_est),
                               draw_pose(*zoom(frame.rgb, frame.mask, frame.K, frame.mask.shape[0]), mesh, T_est)])
@@ -157,7 +158,7 @@ def open_results(folder: Path, dataset: Path | None = None) -> ResultFolder:
         raise UserError(f"{summary_path}: not an eval.run summary (no dataset.path); pass --dataset DIR")
     recorded = recorded["dataset"]
     root = Path(dataset or recorded["path"])
-    if not (root / "models").is_dir():
+    if not Dataset(root).models_dir.is_dir():
         raise UserError(f"{summary_path} names the data set {root}, which has no models/ folder; "
                         "pass --dataset DIR where the data set is now")
     estimates = {(r.scene_id, r.im_id): r.T_cam_ee for r in read_results(folder / "results.csv").values()}

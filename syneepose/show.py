@@ -14,10 +14,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from kernel.bop import read_frame, read_scene, scene_dirs, split_dir
+from kernel.bop import read_frame
+from kernel.dataset import Dataset
 from kernel.errors import UserError
 from kernel.files import write_png
-from kernel.template_set import read_index, read_template
+from kernel.template_set import INDEX, read_index, read_template
 
 GT_COLOUR = (255, 230, 0)  # yellow: the ground-truth silhouette, here and in the pose overlays
 BACKGROUND = (32, 32, 32)
@@ -104,17 +105,15 @@ def frame_panel(scene_dir: Path, scene_id: int, im_id: int, width: int) -> np.nd
 
 def scenes_by_config(root: Path) -> dict[str, list[tuple[int, Path, list[int]]]]:
     """(scene id, folder, frame ids) of every scene of the data set's split, grouped by configuration."""
-    root = Path(root)
-    split = split_dir(root)
-    if not split.is_dir():
-        raise UserError(f"{root}: no {split.name}/ folder; give the root of a data set written by "
+    dataset = Dataset(Path(root))
+    if not dataset.split_dir.is_dir():
+        raise UserError(f"{root}: no {dataset.split}/ folder; give the root of a data set written by "
                         "python -m syneepose render --out DIR")
     groups = defaultdict(list)
-    for scene_id, scene_dir in scene_dirs(split).items():
-        meta, im_ids = read_scene(scene_dir)
-        groups[f"{meta.arm}+{meta.end_effector}"].append((scene_id, scene_dir, im_ids))
+    for scene in dataset.scenes():
+        groups[scene.config].append((scene.scene_id, scene.path, scene.im_ids))
     if not groups:
-        raise UserError(f"{split}: no scenes; render some with python -m syneepose render --out {root}")
+        raise UserError(f"{dataset.split_dir}: no scenes; render some with python -m syneepose render --out {root}")
     return dict(sorted(groups.items()))
 
 
@@ -161,9 +160,8 @@ def write_sheets(root: Path, out: Path, frames: int = 4, width: int = 160) -> tu
         out.parent.mkdir(parents=True, exist_ok=True)
         written = [out]
         write_png(out, cv2.cvtColor(sheet.image, cv2.COLOR_RGB2BGR))
-        template_root = root / "templates"
-        sets = sorted(p for p in template_root.iterdir() if (p / "templates.json").is_file()) \
-            if template_root.is_dir() else []
+        template_root = Dataset(root).templates_dir
+        sets = sorted(p for p in template_root.iterdir() if (p / INDEX).is_file()) if template_root.is_dir() else []
         for folder in sets:
             written.append(out.with_name(f"{out.stem}-templates-{folder.name}.png"))
             write_png(written[-1], cv2.cvtColor(template_sheet(folder), cv2.COLOR_RGB2BGR))

@@ -9,8 +9,9 @@ from scipy.spatial.distance import cdist
 from scipy.spatial.transform import Rotation
 
 from eval.metrics import add, adds, auc, calibration_error, rotation_error_deg, translation_error_mm
-from eval.model_points import MAX_QUERY, MODELS_EVAL, load_eval_model
+from eval.model_points import MAX_QUERY, load_eval_model
 from kernel.bop import read_frame, read_scene, split_dir
+from kernel.dataset import MODELS_EVAL
 from kernel.transforms import axis_angle_to_R, make_T, transform_points
 
 NAN_POSE = np.full((4, 4), np.nan)
