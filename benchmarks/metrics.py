@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from eval.metrics import add, adds, auc
 from eval.model_points import MAX_QUERY, load_eval_model, symmetries_m
+from kernel.dataset import MODELS_INFO
 from kernel.transforms import make_T
 from syneepose import paths
 from syneepose.robots.build import build_assets
@@ -39,7 +40,7 @@ def synthetic_poses(rng, n: int, symmetry: np.ndarray) -> tuple[np.ndarray, np.n
 
 def main() -> None:
     build_assets(paths.assets_dir(), log=lambda *_: None)
-    info = json.loads((paths.models_eval_dir() / "models_info.json").read_text())
+    info = json.loads((paths.models_eval_dir() / MODELS_INFO).read_text())
     rng = np.random.default_rng(0)
     timings = {"draw": 0.0, "ADD": 0.0, "ADD-S": 0.0, "AUC": 0.0}
     total_points = 0

@@ -22,7 +22,7 @@ import numpy as np
 import trimesh
 
 from eval.metrics import KDTree, model_tree
-from kernel.dataset import MODELS_EVAL, Dataset
+from kernel.dataset import MODELS_EVAL, MODELS_INFO, Dataset
 from kernel.errors import UserError
 from kernel.files import read_json
 
@@ -111,7 +111,7 @@ def symmetries_m(info: dict) -> list[np.ndarray]:
 
 def load_eval_model(dataset: Path, obj_id: int, max_query: int | None = MAX_QUERY) -> EvalModel:
     layout = Dataset(Path(dataset))
-    ply, info_path = layout.eval_model_path(obj_id), layout.models_eval_dir / "models_info.json"
+    ply, info_path = layout.eval_model_path(obj_id), layout.models_eval_dir / MODELS_INFO
     for path in (ply, info_path):
         if not path.is_file():
             raise UserError(f"{path}: missing; pose errors are computed on the data set's {MODELS_EVAL}/ (BOP); "

@@ -22,7 +22,7 @@ from feepe.crop import crop_around_mask
 from feepe.depth import backproject, depth_at
 from kernel.errors import UserError
 from kernel.files import write_atomic
-from kernel.template_set import read_index, read_template
+from kernel.template_set import INDEX, read_index, read_template
 from kernel.transforms import inv_T, transform_points
 
 CACHE_VERSION = 2  # 2: the BoW assignment is stored
@@ -59,7 +59,7 @@ def _key(folder: Path, index: dict, backbone, pad: float, bow_options: dict) -> 
     Image contents rather than names, sizes and mtimes: a copied or re-checked-out set keeps its cache, and a
     re-rendered image of the same size within the file system's mtime resolution still misses; reading the
     few MB of PNGs costs little beside decoding them and running the backbone on a miss."""
-    h = hashlib.sha256((folder / "templates.json").read_bytes())
+    h = hashlib.sha256((folder / INDEX).read_bytes())
     for template_id in sorted(int(k) for k in index):
         for kind in TEMPLATE_IMAGES:
             h.update((folder / kind / f"{template_id:06d}.png").read_bytes())

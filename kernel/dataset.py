@@ -24,6 +24,7 @@ from kernel.errors import UserError
 from kernel.files import read_json, read_png
 
 MODELS, MODELS_EVAL, TEMPLATES = "models", "models_eval", "templates"
+MODELS_INFO = "models_info.json"  # in models/ and models_eval/
 
 
 def model_name(obj_id: int) -> str:
@@ -105,7 +106,7 @@ class Dataset:
 
     def obj_ids(self) -> list[int]:
         """The objects of models/models_info.json."""
-        path = self.models_dir / "models_info.json"
+        path = self.models_dir / MODELS_INFO
         if not path.is_file():
             raise UserError(f"{path}: missing; the data set needs its models/ folder")
         return sorted(int(k) for k in read_json(path, "copy the models again (python -m syneepose render)"))

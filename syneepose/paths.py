@@ -7,6 +7,7 @@ from pathlib import Path
 
 import yaml
 
+from kernel.dataset import MODELS, MODELS_EVAL
 from kernel.errors import UserError
 
 
@@ -29,12 +30,12 @@ def config_urdf(config: str, root: Path | None = None) -> Path:
 
 
 def models_dir(root: Path | None = None) -> Path:
-    return (root or assets_dir()) / "models"
+    return (root or assets_dir()) / MODELS
 
 
 def models_eval_dir(root: Path | None = None) -> Path:
     """BOP's `models_eval/`: the uniformly resampled models that pose errors are computed on."""
-    return (root or assets_dir()) / "models_eval"
+    return (root or assets_dir()) / MODELS_EVAL
 
 
 def named_yaml(name_or_path: str, folder: Path, kind: str) -> tuple[Path, dict]:

@@ -21,6 +21,7 @@ from pathlib import Path
 import trimesh
 from filelock import FileLock
 
+from kernel.dataset import MODELS_INFO
 from kernel.errors import UserError
 from syneepose import paths
 from syneepose.robots import ee_models
@@ -175,7 +176,7 @@ def _build(catalog: Catalog, configs: list[str], pairs: list, out: Path, force: 
                 ee_models.write_ply_mm(mesh, tmp / f"obj_{ee.obj_id:06d}.ply")
                 infos[str(ee.obj_id)] = ee_models.model_info(mesh, ee)
                 report.models.append(ee.name)
-            ee_models.write_json(infos, tmp / "models_info.json")
+            ee_models.write_json(infos, tmp / MODELS_INFO)
             ee_models.write_json({str(e.obj_id): e.name for e in ees}, tmp / "models_names.json")
             (tmp / STAMP).write_text(json.dumps({"recipe": recipe}))
             _swap_in(tmp, models)
