@@ -1,5 +1,7 @@
-"""Backbones by name: weight-free dense descriptors (`sift`, `normals`, `color` joined with '+') and
-DINOv2 (`dinov2_vits14`, `dinov2_vitl14`, ... with `_reg` variants) from local weights."""
+"""Backbones by name (`get_backbone`): weight-free dense descriptors built from parts joined with '+' -
+`sift`, `normals`, `color` (dense.py) and OpenCV-contrib's `vgg`, `boost`, `beblid`, `teblid`, `daisy`,
+`latch` (contrib.py); default `sift+normals+color` - and DINOv2 (`dinov2_vits14`, `dinov2_vitl14`, ... with
+`_reg` variants; dinov2.py) from local weights only. The interface is base.py."""
 
 from __future__ import annotations
 

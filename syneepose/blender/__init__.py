@@ -1,5 +1,8 @@
-"""The only bpy code of the project: build a Blender scene from a plain scene description, render
-it with Cycles and hand back numpy arrays. Import its modules only inside render worker processes."""
+"""The project's bpy code: build a Blender scene from a plain scene description (syneepose/scene/spec.py),
+render segments, templates and the stereo IR pair with Cycles and hand back numpy arrays; Voxel Remesh for
+models_eval/; the flat-wall stereo noise check (`python -m syneepose.blender.flat_patch`). bpy holds global
+state and leaks over long loops, so the generator imports these modules only in spawned processes (render
+workers, the models_eval remesh); importing the package loads bpy once, so a broken install is one line."""
 
 from kernel.errors import UserError
 
