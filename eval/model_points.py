@@ -8,7 +8,7 @@ stratified sampling: the model is cut into cubic cells, and for each frame one v
 in every cell and weighted by the cell's share of the vertices. Its expectation is BOP's mean over all
 vertices, and the draws are independent between frames, so the errors of single frames average out of
 an AUC. A fixed representative per cell (the vertex nearest its centroid, our first version) was biased
-low on ADD-S by about 10 um at 4000 cells, enough to move AUC@1cm by 0.1 on the Shadow Hand (README,
+low on ADD-S by about 10 um at 4000 cells, enough to move AUC@1cm by 0.1 on the Shadow Hand (docs/eval.md "Metric cost",
 tests/test_eval_metrics.py). `max_query=None` gives BOP's number exactly.
 """
 

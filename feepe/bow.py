@@ -8,10 +8,10 @@ Two assignments (`assignment`):
 - "gaussian" (ours, the default before): a feature's vote over its 3 nearest words is weighted by a
   Gaussian of the distance (width: the median nearest-word distance of the template features), a word
   present in a template when it is among the 3 nearest words of one of its features, k-means on the PCA
-  sample. On 96 `mini` frames (2F-85, Kinova-3F; README) variant D scored 72.2/80.6 AUC@1cm ADD/ADD-S
+  sample. On 96 `mini` frames (2F-85, Kinova-3F; docs/feepe.md) variant D scored 72.2/80.6 AUC@1cm ADD/ADD-S
   with "foundpose" against 68.8/78.0, variant A 9.0/22.4 against 9.2/23.6.
 Both fit PCA on at most 100k features. Matching (feepe/matching.py) uses the raw unit descriptors, not the
-PCA space FoundPose matches in; see the README (FEEPE, BoW) for what that changes."""
+PCA space FoundPose matches in; see docs/feepe.md (BoW, after FoundPose) for what that changes."""
 
 from __future__ import annotations
 

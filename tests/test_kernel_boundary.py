@@ -94,3 +94,9 @@ def test_feepe_runs_on_camera_frames_without_the_generator(tiny_dataset, tmp_pat
         if given is not None:
             np.testing.assert_allclose(given, expected, atol=1e-9)
     assert json.loads(printed[-1][1]) is not None
+
+
+def test_readme_shows_the_example_that_runs():
+    """The README's camera example is the file the test above runs, line for line."""
+    code = EXAMPLE.read_text().split('"""', 2)[2].strip("\n")
+    assert f"```python\n{code}\n```" in (REPO / "README.md").read_text()

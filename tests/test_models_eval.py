@@ -16,7 +16,7 @@ from syneepose.robots.catalog import load_catalog
 OBJ_IDS = sorted(e.obj_id for e in load_catalog().end_effectors.values())
 FOLDERS = {"models": paths.models_dir, "models_eval": paths.models_eval_dir}
 BOP_TYPES = {"float", "double", "int", "uint", "uchar"}  # load_ply's binary formats
-# Measured at voxel 1 mm (README): visible surfaces agree to <= 0.04 mm on average and <= 0.6 mm at the 99th
+# Measured at voxel 1 mm (docs/syneepose.md): visible surfaces agree to <= 0.04 mm on average and <= 0.6 mm at the 99th
 # percentile; every eval vertex lies within 2.3 mm of the model (the inner wall of the Panda hand's open
 # shell sits 2 mm behind it). The bounds leave a margin of about 2x.
 MEAN_MM, P99_MM, MAX_VERTEX_MM = 0.1, 1.0, 3.0

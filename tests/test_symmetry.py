@@ -41,7 +41,7 @@ def test_random_rotation_is_not_a_symmetry(assets, catalog, name):
 
 @pytest.mark.parametrize("name", ["kinova_3f", "robotiq_3f"])
 def test_three_finger_grippers_have_no_threefold_symmetry(assets, catalog, name):
-    """Measured: the 3-finger hands miss 3-fold symmetry by 2 % of their diameter (see README)."""
+    """Measured: the 3-finger hands miss 3-fold symmetry by 2 % of their diameter (docs/syneepose.md, symmetries)."""
     mesh = load_ee_mesh(catalog.end_effector(name), paths.part_urdf(name, assets))
     holds, err = check_symmetry(mesh, "z", 3, n_samples=500)
     assert not holds and err > 0.01

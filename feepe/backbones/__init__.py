@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from kernel.errors import UserError
 
-DEFAULT = "sift+normals+color"  # chosen by measurement on mini (README, "Weight-free backbone")
+DEFAULT = "sift+normals+color"  # chosen by measurement on mini (docs/feepe.md, "Weight-free backbone")
 DINOV2_NAMES = tuple(f"dinov2_vit{s}14{r}" for s in "sblg" for r in ("", "_reg"))
 
 

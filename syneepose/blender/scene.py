@@ -44,7 +44,7 @@ def reset(width: int, height: int, samples: int, denoise: bool = False, max_boun
     scene.render.film_transparent = transparent
     # Off: with persistent data Cycles updates the scene between frames and a run's frames 1+ land on one
     # of two RGB outputs (66% of pixels, up to 75 levels apart, ur5e+panda_hand at mini settings); off, runs
-    # are byte-identical at the same per-frame cost (issue 14; README "Determinism")
+    # are byte-identical at the same per-frame cost (issue 14; docs/syneepose.md, "Determinism")
     scene.render.use_persistent_data = False
     scene.render.resolution_x, scene.render.resolution_y = width, height
     scene.render.resolution_percentage = 100
