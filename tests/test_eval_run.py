@@ -13,7 +13,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from eval import run
+from eval import methods, run
 from eval.bop_results import HEADER, read_results
 from eval.methods import register
 from eval.methods.base import Estimate
@@ -307,22 +307,34 @@ def test_methods_get_observations_in_order_without_ground_truth(dataset, tmp_pat
         assert r.calib_points_mm == pytest.approx(expected, rel=1e-3) and r.calib_points_mm > 0
 
 
-def test_registry_names_a_missing_or_broken_builtin_method(tmp_path, monkeypatch):
-    from eval import methods
+@pytest.fixture
+def method_files(tmp_path, monkeypatch):
+    """A folder whose modules count as modules of eval/methods/; what they register is forgotten afterwards."""
+    folder = tmp_path / "methods"
+    folder.mkdir()
+    monkeypatch.setattr(methods, "__path__", [*methods.__path__, str(folder)])
+    yield folder
+    ours = {f"eval.methods.{p.stem}" for p in folder.glob("*.py")}
+    for name in [n for n, cls in methods._REGISTRY.items() if cls.__module__ in ours]:
+        del methods._REGISTRY[name]
+    for module in ours:
+        sys.modules.pop(module, None)
 
-    (tmp_path / "broken_method.py").write_text("raise RuntimeError('no weights configured')\n")
-    (tmp_path / "needy_method.py").write_text("import a_package_nobody_has\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    for name, module in (("ghost", "eval.methods.ghost"), ("broken", "broken_method"), ("needy", "needy_method")):
-        monkeypatch.setitem(methods.BUILTIN, name, module)
-    with pytest.raises(UserError, match=r"method 'ghost' is not available in this checkout \(eval.methods.ghost"):
-        methods.get_method("ghost")
-    with pytest.raises(UserError, match="method 'broken' failed to load: broken_method: RuntimeError: no weights"):
+
+def test_registry_names_a_broken_method_module(method_files):
+    """A method module that cannot be imported breaks only itself, with an error that names it."""
+    (method_files / "broken.py").write_text("raise RuntimeError('no weights configured')\n")
+    (method_files / "needy.py").write_text("import a_package_nobody_has\n")
+    (method_files / "misnamed.py").write_text("")
+    with pytest.raises(UserError, match="method 'broken' failed to load: eval.methods.broken: RuntimeError: no w"):
         methods.get_method("broken")
-    with pytest.raises(UserError, match="method 'needy' failed to load: needy_method: .*a_package_nobody_has"):
+    with pytest.raises(UserError, match="method 'needy' failed to load: eval.methods.needy: .*a_package_nobody_has"):
         methods.get_method("needy")
+    with pytest.raises(UserError, match=r"method 'misnamed': eval.methods.misnamed registers no method of that name"):
+        methods.get_method("misnamed")
+    with pytest.raises(UserError, match="unknown method 'ghost'; known methods: bop-csv, broken, feepe, handeye"):
+        methods.get_method("ghost")
     assert methods.get_method("bop-csv").name == "bop-csv"
-    assert {"bop-csv", "feepe", "ghost"} <= set(methods.known_methods())
 
 
 def test_mask_noise_reaches_the_method_seeded_and_claims_the_out_folder(dataset, tmp_path, capsys):
