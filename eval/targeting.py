@@ -27,8 +27,9 @@ from tqdm import tqdm
 
 from eval.handeye import METHODS, BoardDetector, calibrate
 from eval.mask_noise import MaskNoise, mask_noise
+from eval.methods import build_method
 from eval.metrics import WORKSPACE_POINTS, calibration_error
-from eval.run import NO_POSE, Scene, build_method, observation
+from eval.run import NO_POSE, Scene, observation
 from eval.tables import method_label
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from kernel.bop import read_dataset_info, read_frame, read_scene, scene_dirs, split_dir
