@@ -13,11 +13,11 @@ import argparse
 import dataclasses
 import importlib.metadata
 import importlib.util
-import inspect
 import json
 import subprocess
 import sys
 import time
+import typing
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +26,7 @@ from tqdm import tqdm
 from eval.bop_results import BopResult, read_results, write_results
 from eval.fingerprint import differences, only_scoring_changed, read_fingerprint, scene_fingerprint
 from eval.mask_noise import MaskNoise, frame_rng, mask_noise, perturb
-from eval.methods import get_method
+from eval.methods import build_method, flag, get_method, known_methods, required, takes
 from eval.methods.base import Estimate, Observation
 from eval.metrics import WORKSPACE_POINTS, add, adds, calibration_error, rotation_error_deg, translation_error_mm
 from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
@@ -39,8 +39,6 @@ from kernel.errors import UserError
 from kernel.files import read_json, read_png, write_atomic
 from kernel.settings import comma_list
 
-METHOD_OPTIONS = ("variant", "icp", "refine", "silhouette", "refit_growth", "backbone", "layer", "n_templates", "k_r", "k_f", "backbone_weights",
-                  "templates_dir", "bow_assignment", "hand_eye", "results", "name")  # CLI options handed to the method's constructor
 NO_POSE = np.full((4, 4), np.nan)
 
 
@@ -54,22 +52,6 @@ class Scene:
     @property
     def config(self) -> str:
         return f"{self.meta.arm}+{self.meta.end_effector}"
-
-
-def build_method(name: str, given: dict):
-    """The method class built with the options given on the command line; a wrong option is a UserError."""
-    cls = get_method(name)
-    params = inspect.signature(cls).parameters
-    takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
-    accepted = [p for p in params if params[p].kind is not params[p].VAR_KEYWORD]
-    flags = ", ".join(f"--{p}" for p in accepted) or "no options"
-    for option in given:
-        if option not in params and not takes_any:
-            raise UserError(f"method {name!r} does not take --{option}; it takes {flags}")
-    for p in params.values():
-        if p.default is p.empty and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name not in given:
-            raise UserError(f"method {name!r} needs --{p.name}")
-    return cls(**given)
 
 
 def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list[Scene]:
@@ -343,46 +325,90 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     return summary
 
 
+def add_flags(group, options: type) -> None:
+    """One flag per field of a method's `Options`. A flag not given stays out of the namespace, so the
+    declaration's default applies and the options a user gave are told apart from the defaults."""
+    hints = typing.get_type_hints(options)
+    for field in dataclasses.fields(options):
+        kind, text, choices = hints[field.name], field.metadata.get("help", ""), field.metadata.get("choices")
+        if required(field):
+            text += " (required)"
+        elif kind is not bool and field.default not in (None, dataclasses.MISSING):
+            text += f" (default: {field.default})"
+        if kind is bool:
+            group.add_argument(flag(field.name), action="store_const", const=True, default=argparse.SUPPRESS,
+                               help=text)
+        else:
+            metavar = "{" + ",".join(map(str, choices)) + "}" if choices else None
+            group.add_argument(flag(field.name), type=_parsed_as(kind), metavar=metavar, default=argparse.SUPPRESS,
+                               help=text)
+
+
+def _parsed_as(hint) -> type:
+    """The type a flag's text becomes: the annotation, or the one type beside None in `T | None`."""
+    kinds = [k for k in typing.get_args(hint) if k is not type(None)]
+    return kinds[0] if kinds else hint
+
+
+def methods_help() -> str:
+    """Every method's flags, grouped per method; a method that cannot be loaded says why in its place."""
+    sections = []
+    for name in known_methods():
+        try:
+            cls = get_method(name)
+        except UserError as exc:
+            sections.append(f"--method {name}:\n  {exc}\n")
+            continue
+        parser = argparse.ArgumentParser(add_help=False, usage=argparse.SUPPRESS)
+        none = "takes no options" if not dataclasses.fields(cls.Options) else None
+        add_flags(parser.add_argument_group(f"--method {name}", none), cls.Options)
+        sections.append(parser.format_help())
+    return "\n".join(sections)
+
+
+class _Help(argparse.Action):
+    """-h lists the methods' options too; it loads every method, which a run does not."""
+
+    def __init__(self, option_strings, dest, help=None):
+        super().__init__(option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser.epilog = methods_help()
+        parser.print_help()
+        parser.exit()
+
+
+def method_options(parser: argparse.ArgumentParser, argv, name: str) -> dict:
+    """The options given on the command line for method `name` (field -> value); a flag it does not take is
+    one line that names the flags it does."""
+    cls = get_method(name)
+    add_flags(parser.add_argument_group(f"--method {name}"), cls.Options)
+    args, unknown = parser.parse_known_args(argv)
+    for token in unknown:
+        if token.startswith("--"):
+            raise UserError(f"method {name!r} does not take {token.split('=')[0]}; it takes {takes(cls)}")
+    if unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+    return {f.name: getattr(args, f.name) for f in dataclasses.fields(cls.Options) if hasattr(args, f.name)}
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m eval.run", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m eval.run", description=__doc__, add_help=False,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--method", required=True, help="bop-csv, feepe, ...")
+    parser.add_argument("-h", "--help", action=_Help, help="show this help, with every method's options, and exit")
+    parser.add_argument("--method", required=True, help=f"{', '.join(known_methods())} (their options below)")
     parser.add_argument("--dataset", required=True, help="BOP data set root (holds dataset_info.json, models/)")
     parser.add_argument("--out", required=True, help="result folder (resumed if it holds the same run)")
-    parser.add_argument("--variant", choices=["A", "B", "C", "D"], help="method option: ablation variant")
-    parser.add_argument("--backbone", help="method option: feature backbone")
-    parser.add_argument("--icp", action="store_const", const=True,
-                        help="feepe option: add depth alignment (our extension, not in the paper)")
-    parser.add_argument("--refine", choices=["none", "silhouette", "silhouette+depth"],
-                        help="feepe option: refine the calibration on the key frames' masks, alone or with depth "
-                             "over a sensor noise model (our extension, not in the paper; default none)")
-    parser.add_argument("--silhouette", choices=["ee", "robot"],
-                        help="feepe option: the outline --refine fits: the end-effector's mask (default, the paper's "
-                             "input) or the whole robot's (every arm link by FK; needs robot_mask_visib/ in the data set)")
-    parser.add_argument("--refit-growth", type=float,
-                        help="feepe option: a new key frame refits the calibration only once the memory grew by this "
-                             "fraction since the last refit (default 0: each new key frame; our extension)")
-    parser.add_argument("--layer", type=int, help="feepe option: DINOv2 block, counted from 0 as FoundPose (paper: 19 of ViT-L's 0..23)")
-    parser.add_argument("--n-templates", type=int, help="feepe option: template set by count (default: largest)")
-    parser.add_argument("--k-r", type=int, help="feepe option: reference templates per frame (paper: 5)")
-    parser.add_argument("--k-f", type=int, help="feepe option: key frames (paper: 8)")
-    parser.add_argument("--backbone-weights", help="feepe option: DINOv2 weights (HF folder or torch-hub .pth)")
-    parser.add_argument("--templates-dir", help="feepe option: template root (default: DATASET/templates)")
-    parser.add_argument("--bow-assignment", help="feepe option: BoW word assignment, foundpose (FoundPose's, "
-                        "default) or gaussian (ours: distance-weighted votes)")
-    parser.add_argument("--hand-eye", help="handeye option: tsai (default), park, horaud, andreff, daniilidis")
-    parser.add_argument("--results", help="bop-csv option: the BOP results CSV to score")
-    parser.add_argument("--name", help="bop-csv option: the label of those results (e.g. MegaPose)")
     parser.add_argument("--scenes", help="comma-separated scene ids (default: all)")
     parser.add_argument("--robots", help="comma-separated ARM+EE configurations (default: all)")
     parser.add_argument("--depth-dir", default="depth", help="depth folder of each scene (e.g. depth_gt)")
     parser.add_argument("--mask-noise", default="none", help="none (the data set's exact masks, default) or sam: "
                         "masks perturbed as a segmenter's (boundary shifted 1-4 px, false blobs, holes; our model)")
     parser.add_argument("--mask-seed", type=int, default=0, help="seed of the mask perturbation (default 0)")
-    args = parser.parse_args(argv)
-    options = {k: getattr(args, k) for k in METHOD_OPTIONS if getattr(args, k) is not None}
+    args, _ = parser.parse_known_args(argv)  # the method's flags are known once the method is
 
     def action() -> str:
+        options = method_options(parser, argv, args.method)
         summary = evaluate(args.method, options, Path(args.dataset), Path(args.out), args.scenes, args.robots,
                            args.depth_dir, mask_noise(args.mask_noise, args.mask_seed))
         avg = summary["average"]
@@ -390,6 +416,7 @@ def main(argv=None) -> int:
                 f"{avg['add@1cm']:.2f} ADD-S {avg['adds@1cm']:.2f} (mean over end-effectors); {args.out}/summary.json")
 
     return run_command(action)
+
 
 if __name__ == "__main__":
     sys.exit(main())

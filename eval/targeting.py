@@ -3,12 +3,14 @@
 Each configuration is rendered twice with the same robot motion, camera and lights: with a ChArUco board
 bolted to the end-effector (`render --marker`) and without (`render`). For every number of views N
 (3, 5, 10, 15, 20) and each of `--draws` random draws of N of the segment's frames, the marker method
-calibrates from the board poses of those frames (`cv2.calibrateHandEye`, Tsai by default, as the
-paper's baseline) and FEEPE runs online over the same frames of the marker-free twin, in frame order;
-both camera-to-base poses are scored at 5 fixed workspace points (mean distance, mm) and in rotation.
-FEEPE is the registered `feepe` method with the options `eval.run` gives it (`--refine`, `--silhouette`,
-`--mask-noise`, `--depth-dir`). Render with `--preset targeting-stations` for the fair marker peer: stations
-where the board is seen in every view (syneepose/scene/stations.py); the marker rows then carry the preset.
+runs online over those frames of the marker segment (calibrating from their board poses with
+`cv2.calibrateHandEye`, Tsai by default, as the paper's baseline) and FEEPE over the same frames of the
+marker-free twin, both in frame order; both camera-to-base poses are scored at 5 fixed workspace points
+(mean distance, mm) and in rotation. The two are the registered `handeye` and `feepe` methods, built and
+checked as `eval.run` builds them from the same options (`--hand-eye`, `--refine`, `--silhouette`, ...),
+and see frames as `eval.run` hands them (`--mask-noise`, `--depth-dir` for FEEPE). Render with `--preset
+targeting-stations` for the fair marker peer: stations where the board is seen in every view
+(syneepose/scene/stations.py); the marker rows then carry the preset.
 """
 
 from __future__ import annotations
@@ -25,17 +27,17 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from eval.handeye import METHODS, BoardDetector, calibrate
 from eval.mask_noise import MaskNoise, mask_noise
+from eval.methods import build_method
+from eval.methods.base import Estimate
 from eval.metrics import WORKSPACE_POINTS, calibration_error
-from eval.run import NO_POSE, Scene, build_method, observation
+from eval.run import NO_POSE, Scene, observation
 from eval.tables import method_label
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
-from kernel.bop import read_dataset_info, read_frame, read_scene, scene_dirs, split_dir
+from kernel.bop import read_dataset_info, read_scene, scene_dirs, split_dir
 from kernel.cli import output_dir, run_command
 from kernel.errors import UserError
 from kernel.files import read_json, write_atomic
-from syneepose.scene.marker import MarkerBoard
 
 VIEWS = (3, 5, 10, 15, 20)
 FIELDS = ("method", "scene_id", "config", "views", "draw", "points_mm", "rot_deg", "detected")
@@ -89,7 +91,7 @@ def feepe_label(options: dict, plain_root: Path, depth_dir: str, noise: MaskNois
     return name + (f" ({', '.join(seen)})" if seen else "")
 
 
-def _check(views, draws: int, seed: int, hand_eye: str, frames: int) -> None:
+def _check(views, draws: int, seed: int, frames: int) -> None:
     """Every option before any frame is read: a mistake is one line and writes nothing."""
     if not views or any(not 1 <= n <= frames for n in views):
         raise UserError(f"--views {','.join(map(str, views))}: each number must lie in 1..{frames}, the frames of "
@@ -100,46 +102,47 @@ def _check(views, draws: int, seed: int, hand_eye: str, frames: int) -> None:
         raise UserError(f"--draws {draws}: must lie in 1..1000")
     if seed < 0:
         raise UserError(f"--seed {seed}: must be >= 0")
-    if hand_eye not in METHODS:
-        raise UserError(f"--hand-eye {hand_eye!r} unknown; choose one of {', '.join(METHODS)}")
+
+
+def _online(method, scene: Scene, observations: list) -> list[Estimate]:
+    """The method over the chosen frames in frame order, from a fresh start, the calibration hidden."""
+    method.start_scene(dataclasses.replace(scene.meta, T_cam_base=NO_POSE.copy()), scene.path)
+    return [method.estimate(obs) for obs in observations]
+
+
+def _observations(scene: Scene, depth_dir: str, noise: MaskNoise | None) -> dict:
+    cameras = read_json(scene.path / "scene_camera.json")
+    return {i: observation(scene, i, depth_dir, cameras, noise)[0] for i in scene.im_ids}
 
 
 def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: int = 0, hand_eye: str = "tsai",
         feepe: dict | None = None, depth_dir: str = "depth", noise: MaskNoise | None = None) -> list[Trial]:
     """`feepe`: the FEEPE method's options as `eval.run --method feepe` takes them (variant, icp, refine, ...)."""
     pairs = _pairs(Path(marker_root), Path(plain_root))
-    _check(views, draws, seed, hand_eye, min(len(read_scene(m)[1]) for m, _ in pairs))
-    method = build_method("feepe", feepe or {})
-    feepe_name = feepe_label(method.options(), Path(plain_root), depth_dir, noise)
+    _check(views, draws, seed, min(len(read_scene(m)[1]) for m, _ in pairs))
+    marker = build_method("handeye", {"hand_eye": hand_eye})
+    estimator = build_method("feepe", feepe or {})
+    feepe_name = feepe_label(estimator.options(), Path(plain_root), depth_dir, noise)
     preset = Path(read_dataset_info(Path(marker_root)).get("preset") or "targeting").stem
     marker_name = "marker hand-eye" + (f" ({preset})" if preset != "targeting" else "")  # the old rows' name
     trials, rng = [], np.random.default_rng(seed)
     bar = tqdm(total=len(pairs) * len(views) * draws, unit="trial", desc="targeting")
     for marker_dir, plain_dir in pairs:
         meta, ids = read_scene(marker_dir)
-        plain_meta, _ = read_scene(plain_dir)
         config, scene_id = f"{meta.arm}+{meta.end_effector}", int(marker_dir.name)
-        detector = BoardDetector(MarkerBoard.from_json(meta.marker))
-        boards = {}
-        for i in ids:
-            f = read_frame(marker_dir, i)
-            boards[i] = (f.T_base_ee, detector.T_cam_board(f.rgb, f.K)[0])
-        scene = Scene(scene_id, plain_dir, plain_meta, ids)
-        cameras = read_json(plain_dir / "scene_camera.json")
-        plain = {i: observation(scene, i, depth_dir, cameras, noise)[0] for i in ids}
-        hidden = dataclasses.replace(plain_meta, T_cam_base=NO_POSE.copy())
+        marker_scene = Scene(scene_id, marker_dir, meta, ids)
+        plain_scene = Scene(scene_id, plain_dir, read_scene(plain_dir)[0], ids)
+        boards, frames = _observations(marker_scene, "depth", None), _observations(plain_scene, depth_dir, noise)
         for n in views:
             for draw in range(draws):
                 chosen = sorted(rng.choice(ids, n, replace=False).tolist())
-                seen = [boards[i] for i in chosen if boards[i][1] is not None]
-                T_marker = calibrate([b[0] for b in seen], [b[1] for b in seen], hand_eye) if len(seen) >= 3 else None
-                trials.append(Trial(marker_name, scene_id, config, n, draw, *_error(T_marker, meta.T_cam_base),
-                                    len(seen)))
-                method.start_scene(hidden, plain_dir)
-                results = [method.estimate(plain[i]) for i in chosen]
+                by_board = _online(marker, marker_scene, [boards[i] for i in chosen])
+                trials.append(Trial(marker_name, scene_id, config, n, draw,
+                                    *_error(by_board[-1].T_cam_base, meta.T_cam_base), by_board[-1].extra["views"]))
+                by_feepe = _online(estimator, plain_scene, [frames[i] for i in chosen])
                 trials.append(Trial(feepe_name, scene_id, config, n, draw,
-                                    *_error(results[-1].T_cam_base, meta.T_cam_base),
-                                    sum(r.T_cam_ee is not None for r in results)))
+                                    *_error(by_feepe[-1].T_cam_base, meta.T_cam_base),
+                                    sum(r.T_cam_ee is not None for r in by_feepe)))
                 bar.update()
     bar.close()
     return trials

@@ -214,8 +214,8 @@ EVAL = [
     (["--silhouette", "robot"], ["silhouette 'robot'"]),
     (["--layer", 3], ["--layer"]),
     (["--bow-assignment", "nearest"], ["--bow-assignment 'nearest'"]),
-    (["--hand-eye", "tsai"], ["does not take --hand_eye"]),
-    (["--variant", "E"], ["usage", "--variant"]),
+    (["--hand-eye", "tsai"], ["does not take --hand-eye"]),
+    (["--variant", "E"], ["--variant 'E' unknown; choose from A, B, C, D"]),
 ]
 
 

@@ -6,6 +6,7 @@ import json
 import shutil
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +14,9 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from eval import run
+from eval import methods, run
 from eval.bop_results import HEADER, read_results
-from eval.methods import register
+from eval.methods import option, register
 from eval.methods.base import Estimate
 from eval.metrics import WORKSPACE_POINTS, calibration_error
 from eval.model_points import MAX_QUERY
@@ -255,14 +256,21 @@ def test_bad_csv_through_the_command_line(dataset, tmp_path):
     assert f"{csv}:2: not a number" in _one_error_line(proc.stderr)
 
 
+@dataclass(frozen=True)
+class ProbeFlags:
+    variant: str = option("D", "recorded as the run's variant")
+    backbone: str = option("none", "recorded as the run's backbone")
+
+
 @register("test-probe")
 class Probe:
     """Records what the runner hands a method; answers the depth it saw as a pose (for --depth-dir)."""
 
+    Options = ProbeFlags
     seen: list = []
 
-    def __init__(self, variant: str = "D", backbone: str = "none"):
-        self.variant, self.backbone = variant, backbone
+    def __init__(self, flags: ProbeFlags):
+        self.variant, self.backbone = flags.variant, flags.backbone
 
     def options(self) -> dict:
         return {"variant": self.variant, "backbone": self.backbone}
@@ -307,22 +315,98 @@ def test_methods_get_observations_in_order_without_ground_truth(dataset, tmp_pat
         assert r.calib_points_mm == pytest.approx(expected, rel=1e-3) and r.calib_points_mm > 0
 
 
-def test_registry_names_a_missing_or_broken_builtin_method(tmp_path, monkeypatch):
-    from eval import methods
+@pytest.fixture
+def method_files(tmp_path, monkeypatch):
+    """A folder whose modules count as modules of eval/methods/; what they register is forgotten afterwards."""
+    folder = tmp_path / "methods"
+    folder.mkdir()
+    monkeypatch.setattr(methods, "__path__", [*methods.__path__, str(folder)])
+    yield folder
+    ours = {f"eval.methods.{p.stem}" for p in folder.glob("*.py")}
+    for name in [n for n, cls in methods._REGISTRY.items() if cls.__module__ in ours]:
+        del methods._REGISTRY[name]
+    for module in ours:
+        sys.modules.pop(module, None)
 
-    (tmp_path / "broken_method.py").write_text("raise RuntimeError('no weights configured')\n")
-    (tmp_path / "needy_method.py").write_text("import a_package_nobody_has\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    for name, module in (("ghost", "eval.methods.ghost"), ("broken", "broken_method"), ("needy", "needy_method")):
-        monkeypatch.setitem(methods.BUILTIN, name, module)
-    with pytest.raises(UserError, match=r"method 'ghost' is not available in this checkout \(eval.methods.ghost"):
-        methods.get_method("ghost")
-    with pytest.raises(UserError, match="method 'broken' failed to load: broken_method: RuntimeError: no weights"):
+
+def test_registry_names_a_broken_method_module(method_files, capsys):
+    """A method module that cannot be imported breaks only itself, with an error that names it."""
+    (method_files / "broken.py").write_text("raise RuntimeError('no weights configured')\n")
+    (method_files / "needy.py").write_text("import a_package_nobody_has\n")
+    (method_files / "misnamed.py").write_text("")
+    with pytest.raises(UserError, match="method 'broken' failed to load: eval.methods.broken: RuntimeError: no w"):
         methods.get_method("broken")
-    with pytest.raises(UserError, match="method 'needy' failed to load: needy_method: .*a_package_nobody_has"):
+    with pytest.raises(UserError, match="method 'needy' failed to load: eval.methods.needy: .*a_package_nobody_has"):
         methods.get_method("needy")
+    with pytest.raises(UserError, match=r"method 'misnamed': eval.methods.misnamed registers no method of that name"):
+        methods.get_method("misnamed")
+    with pytest.raises(UserError, match="unknown method 'ghost'; known methods: bop-csv, broken, feepe, handeye"):
+        methods.get_method("ghost")
     assert methods.get_method("bop-csv").name == "bop-csv"
-    assert {"bop-csv", "feepe", "ghost"} <= set(methods.known_methods())
+    with pytest.raises(SystemExit) as exit_:
+        run.main(["--help"])
+    assert exit_.value.code == 0
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "--method broken: method 'broken' failed to load: eval.methods.broken: RuntimeError" in help_text
+    assert "--method feepe: --variant {A,B,C,D} ablation variant (default: D)" in help_text
+    assert "--method handeye: --hand-eye {tsai,park,horaud,andreff,daniilidis}" in help_text
+
+
+TOY_METHOD = '''"""`toy-offset`: the ground truth moved along the camera's x axis, a method in one file."""
+
+from dataclasses import dataclass
+
+from eval.methods import option, register
+from eval.methods.base import Estimate
+from kernel.bop import read_gt_poses
+
+
+@dataclass(frozen=True)
+class ToyFlags:
+    offset_mm: float = option(0.0, "how far the estimates are moved", within=(0.0, 100.0))
+
+
+@register("toy-offset")
+class ToyOffset:
+    Options = ToyFlags
+
+    def __init__(self, flags: ToyFlags):
+        self.offset_mm, self.gt = flags.offset_mm, {}
+
+    def options(self) -> dict:
+        return {"offset_mm": self.offset_mm}
+
+    def start_scene(self, meta, scene_dir):
+        self.gt = read_gt_poses(scene_dir)
+
+    def estimate(self, obs):
+        T = self.gt[obs.im_id].copy()
+        T[0, 3] += self.offset_mm / 1000.0
+        return Estimate(T_cam_ee=T, score=1.0, time_s=0.0)
+'''
+
+
+def test_a_new_method_is_one_file_with_its_own_flags(dataset, tmp_path, method_files, capsys):
+    """Dropped into eval/methods/, a module is `--method` by its name, and its option dataclass makes its flags,
+    their checks and their help; nothing else is edited."""
+    (method_files / "toy_offset.py").write_text(TOY_METHOD)
+    common = ["--method", "toy-offset", "--dataset", str(dataset)]
+    assert run.main([*common, "--out", str(tmp_path / "out"), "--offset-mm", "3"]) == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["method"] == "toy-offset" and summary["options"] == {"offset_mm": 3.0}
+    assert summary["average"]["add@1cm"] == pytest.approx(70.0, abs=0.1)  # ADD = 3 mm on every frame
+    for argv, message in (
+            ([*common, "--offset-mm", "500"], "--offset-mm 500.0: must lie in 0.0..100.0"),
+            ([*common, "--k-r", "3"], "method 'toy-offset' does not take --k-r; it takes --offset-mm"),
+            (["--method", "bop-csv", "--dataset", str(dataset), "--results", "x.csv", "--name", "X", "--offset-mm",
+              "3"], "method 'bop-csv' does not take --offset-mm; it takes --results, --name")):
+        assert run.main([*argv, "--out", str(tmp_path / "refused")]) == 2
+        assert message in _one_error_line(capsys.readouterr().err)
+    assert not (tmp_path / "refused").exists()
+    with pytest.raises(SystemExit):
+        run.main(["--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "--method toy-offset: --offset-mm OFFSET_MM how far the estimates are moved (default: 0.0)" in help_text
 
 
 def test_mask_noise_reaches_the_method_seeded_and_claims_the_out_folder(dataset, tmp_path, capsys):

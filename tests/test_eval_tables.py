@@ -3,27 +3,36 @@ the runs have the options, reported rows always, in Markdown, LaTeX and CSV, and
 
 import csv
 import json
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
 from matplotlib.image import imread
 
 from eval import reported, run, tables
-from eval.methods import register
-from eval.methods.bop_csv import BopCsv
+from eval.methods import option, register
+from eval.methods.bop_csv import BopCsv, BopCsvFlags
 from eval.metrics import auc
 from eval.plots import convergence, frame_bins, mean_curve
 from eval.records import FrameErrors, read_errors
 from tests.test_eval_run import gt_csv, make_dataset
 
 
+@dataclass(frozen=True)
+class TunedFlags(BopCsvFlags):
+    variant: str = option("D", "recorded as the run's variant")
+    backbone: str = option("sift-normals", "recorded as the run's backbone")
+
+
 @register("test-tuned")
 class Tuned(BopCsv):
     """bop-csv with the options a FEEPE run records, so the ablation / layer / hyperparameter tables fill."""
 
-    def __init__(self, results: str, name: str, variant: str = "D", backbone: str = "sift-normals"):
-        super().__init__(results, name)
-        self.variant, self.backbone = variant, backbone
+    Options = TunedFlags
+
+    def __init__(self, flags: TunedFlags):
+        super().__init__(flags)
+        self.variant, self.backbone = flags.variant, flags.backbone
 
     def options(self) -> dict:
         return {**super().options(), "variant": self.variant, "backbone": self.backbone, "layer": 19,
@@ -132,13 +141,20 @@ def test_convergence_by_frame_index():
     assert np.allclose(calib, [40.0, 20.0, 10.0, 5.0])
 
 
+@dataclass(frozen=True)
+class RefinedFlags(TunedFlags):
+    silhouette: str = option("ee", "recorded as the refinement's outline")
+
+
 @register("test-refined")
 class Refined(Tuned):
     """A FEEPE-like run that records a refinement and its outline."""
 
-    def __init__(self, results: str, name: str, silhouette: str = "ee"):
-        super().__init__(results, name)
-        self.silhouette = silhouette
+    Options = RefinedFlags
+
+    def __init__(self, flags: RefinedFlags):
+        super().__init__(flags)
+        self.silhouette = flags.silhouette
 
     def options(self) -> dict:
         return {**super().options(), "refine": "silhouette+depth", "silhouette": self.silhouette}

@@ -34,9 +34,11 @@ class Estimate:
 
 
 class Method(Protocol):
-    """A method class is built with its options as keyword arguments (`--variant`, `--backbone`, ...)."""
+    """A method class declares its options as a dataclass, `Options`, of `eval.methods.option` fields (the
+    command line is made from it) and is built with one instance of it."""
 
     name: str
+    Options: type
 
     def options(self) -> dict:
         """Everything that sets the method's behaviour, JSON-able (goes into summary.json)."""

@@ -3,20 +3,29 @@ weights), read from its BOP results CSV and replayed frame by frame."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from eval.bop_results import BopResult, read_results
-from eval.methods import register
+from eval.methods import option, register
 from eval.methods.base import Estimate, Observation
 from kernel.bop import SceneMeta
 from kernel.errors import UserError
 from kernel.files import read_json
 
 
+@dataclass(frozen=True)
+class BopCsvFlags:
+    results: str = option(help="the BOP results CSV to score")
+    name: str = option(help="the label of those results (e.g. MegaPose)")
+
+
 @register("bop-csv")
 class BopCsv:
-    def __init__(self, results: str, name: str):
-        self.results, self.label = Path(results), name
+    Options = BopCsvFlags
+
+    def __init__(self, flags: BopCsvFlags):
+        self.results, self.label = Path(flags.results), flags.name
         self._by_key: dict[tuple[int, int, int], BopResult] | None = None
         self._scene_id = self._obj_id = -1
 

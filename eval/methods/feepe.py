@@ -10,17 +10,19 @@ poses from forward kinematics of each frame's joint positions, as a user with th
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
-from eval.methods import register
+from eval.methods import option, register
 from eval.methods.base import Estimate, Observation
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import SingleFrameOptions
-from feepe.estimator import Estimator, FeepeOptions, RobotView, describe, load_models
+from feepe.estimator import (REFINEMENTS, SILHOUETTES, VARIANTS, Estimator, FeepeOptions, RobotView, describe,
+                             load_models)
 from feepe.onboarding import onboard
 from feepe.silhouette import SilhouetteModel
 from kernel.bop import SceneMeta
@@ -28,28 +30,48 @@ from kernel.errors import UserError
 from kernel.template_set import find_template_set
 
 
+@dataclass(frozen=True)
+class FeepeFlags:
+    """What a user sets of FEEPE; everything else keeps FeepeOptions' defaults (the paper's setup)."""
+
+    variant: str = option("D", "ablation variant", choices=VARIANTS)
+    backbone: str = option(DEFAULT_BACKBONE, "feature backbone")
+    icp: bool = option(False, "add depth alignment (our extension, not in the paper)")
+    refine: str = option("none", "refine the calibration on the key frames' masks, alone or with depth over a sensor "
+                         "noise model (our extension, not in the paper)", choices=REFINEMENTS)
+    silhouette: str = option("ee", "the outline --refine fits: the end-effector's mask (ee, the paper's input) or "
+                             "the whole robot's (robot: every arm link by FK; needs robot_mask_visib/ in the data "
+                             "set)", choices=SILHOUETTES)
+    refit_growth: float = option(0.0, "a new key frame refits the calibration only once the memory grew by this "
+                                 "fraction since the last refit (0: each new key frame; our extension)")
+    layer: int | None = option(None, "DINOv2 block, counted from 0 as FoundPose (paper: 19 of ViT-L's 0..23)",
+                               within=(0, 10000))
+    n_templates: int | None = option(None, "template set by count (default: largest)", within=(1, 10000))
+    k_r: int = option(5, "reference templates per frame (paper: 5)", within=(1, 10000))
+    k_f: int = option(8, "key frames (paper: 8)", within=(0, 10000))
+    backbone_weights: str | None = option(None, "DINOv2 weights (HF folder or torch-hub .pth)")
+    templates_dir: str | None = option(None, "template root (default: DATASET/templates)")
+    bow_assignment: str = option("foundpose", "BoW word assignment: foundpose (FoundPose's) or gaussian (ours: "
+                                 "distance-weighted votes)", choices=("foundpose", "gaussian"))
+
+
 @register("feepe")
 class Feepe:
-    def __init__(self, variant: str = "D", backbone: str = DEFAULT_BACKBONE, layer: int | None = None,
-                 n_templates: int | None = None, k_r: int = 5, k_f: int = 8, backbone_weights: str | None = None,
-                 templates_dir: str | None = None, icp: bool = False, bow_assignment: str = "foundpose",
-                 refine: str = "none", silhouette: str = "ee", refit_growth: float = 0.0):
-        for flag, value, low in (("--k-r", k_r, 1), ("--k-f", k_f, 0), ("--n-templates", n_templates, 1),
-                                 ("--layer", layer, 0)):
-            if value is not None and not low <= value <= 10000:
-                raise UserError(f"{flag} {value}: must lie in {low}..10000")
-        if bow_assignment not in ("foundpose", "gaussian"):
-            raise UserError(f"--bow-assignment {bow_assignment!r}: foundpose (FoundPose's) or gaussian (ours)")
-        self.opts = FeepeOptions(variant=variant, k_f=k_f, icp=icp, refine=refine, silhouette=silhouette,
-                                 silhouette_refit_growth=refit_growth, single=SingleFrameOptions(k_r=k_r))
-        self.bow_assignment = bow_assignment
+    Options = FeepeFlags
+
+    def __init__(self, flags: FeepeFlags):
+        self.opts = FeepeOptions(variant=flags.variant, k_f=flags.k_f, icp=flags.icp, refine=flags.refine,
+                                 silhouette=flags.silhouette, silhouette_refit_growth=flags.refit_growth,
+                                 single=SingleFrameOptions(k_r=flags.k_r))
+        self.bow_assignment = flags.bow_assignment
         kwargs = {}
-        if backbone.startswith("dinov2"):
-            kwargs = {"layer": layer, "weights": backbone_weights}
-        elif layer is not None or backbone_weights is not None:
-            raise UserError(f"--layer and --backbone-weights are DINOv2 options; backbone {backbone!r} has neither")
-        self.backbone = get_backbone(backbone, **kwargs)
-        self.n_templates, self.templates_dir = n_templates, templates_dir
+        if flags.backbone.startswith("dinov2"):
+            kwargs = {"layer": flags.layer, "weights": flags.backbone_weights}
+        elif flags.layer is not None or flags.backbone_weights is not None:
+            raise UserError(f"--layer and --backbone-weights are DINOv2 options; backbone {flags.backbone!r} has "
+                            "neither")
+        self.backbone = get_backbone(flags.backbone, **kwargs)
+        self.n_templates, self.templates_dir = flags.n_templates, flags.templates_dir
         self._estimators: dict[str, Estimator] = {}
         self._current: Estimator | None = None
         self._arms: dict[str, tuple] = {}  # config -> (Robot, arm link names, their silhouette models)

@@ -8,24 +8,30 @@ end-effector pose follows from forward kinematics. Earlier frames are recorded n
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from eval.handeye import METHODS, BoardDetector, calibrate
-from eval.methods import register
+from eval.methods import option, register
 from eval.methods.base import Estimate, Observation
 from kernel.bop import SceneMeta
 from kernel.errors import UserError
 from syneepose.scene.marker import MarkerBoard
 
 
+@dataclass(frozen=True)
+class HandEyeFlags:
+    hand_eye: str = option("tsai", "the cv2.calibrateHandEye solver", choices=tuple(METHODS))
+
+
 @register("handeye")
 class HandEye:
-    def __init__(self, hand_eye: str = "tsai"):
-        if hand_eye not in METHODS:
-            raise UserError(f"--hand-eye {hand_eye!r} unknown; choose from {', '.join(METHODS)}")
-        self.solver = hand_eye
+    Options = HandEyeFlags
+
+    def __init__(self, flags: HandEyeFlags):
+        self.solver = flags.hand_eye
         self._detector: BoardDetector | None = None
         self._views: list[tuple[np.ndarray, np.ndarray]] = []
 

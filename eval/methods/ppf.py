@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from eval.methods import register
+from eval.methods import NoOptions, register
 from eval.methods.base import Estimate, Observation
 from eval.ppf import PpfDetector, PpfOptions, scene_cloud
 from feepe.icp import SurfaceModel
@@ -17,7 +17,9 @@ from kernel.bop import SceneMeta
 
 @register("ppf")
 class Ppf:
-    def __init__(self):
+    Options = NoOptions
+
+    def __init__(self, flags: NoOptions):
         self.opts = PpfOptions()
         self._detectors: dict[int, PpfDetector] = {}
         self._current: PpfDetector | None = None
