@@ -9,7 +9,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 from syneepose import paths
 from syneepose.blender import scene as bscene

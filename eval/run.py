@@ -32,35 +32,24 @@ from eval.metrics import WORKSPACE_POINTS, add, adds, calibration_error, rotatio
 from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
-from kernel.bop import (SceneMeta, complete_frames, read_dataset_info, read_frame, read_gt_poses, read_scene,
-                        scene_dirs, split_name)
+from kernel.bop import complete_frames
 from kernel.cli import run_command
+from kernel.dataset import Dataset, Scene
 from kernel.errors import UserError
-from kernel.files import read_json, read_png, write_atomic
+from kernel.files import read_json, write_atomic
 from kernel.settings import comma_list
 
 NO_POSE = np.full((4, 4), np.nan)
 
 
-@dataclasses.dataclass
-class Scene:
-    scene_id: int
-    path: Path
-    meta: SceneMeta
-    im_ids: list[int]
-
-    @property
-    def config(self) -> str:
-        return f"{self.meta.arm}+{self.meta.end_effector}"
-
-
-def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list[Scene]:
-    if not split_dir.parent.is_dir():
-        raise UserError(f"--dataset {split_dir.parent}: no such folder; give the root of a BOP data set")
+def find_scenes(dataset: Dataset, scenes: str | None, robots: str | None) -> list[Scene]:
+    if not dataset.root.is_dir():
+        raise UserError(f"--dataset {dataset.root}: no such folder; give the root of a BOP data set")
+    split_dir = dataset.split_dir
     if not split_dir.is_dir():
-        raise UserError(f"--dataset {split_dir.parent}: no {split_dir.name}/ folder; give the root of a BOP data "
+        raise UserError(f"--dataset {dataset.root}: no {split_dir.name}/ folder; give the root of a BOP data "
                         "set (python -m syneepose render --out DIR)")
-    present = scene_dirs(split_dir)
+    present = dataset.scene_dirs()
     ids = sorted(present)
     if scenes:
         def is_id(text: str) -> None:
@@ -72,23 +61,20 @@ def find_scenes(split_dir: Path, scenes: str | None, robots: str | None) -> list
         missing = [i for i in ids if i not in present]
         if missing:
             raise UserError(f"--scenes: scene {missing[0]} is not in {split_dir} (it has {len(present)} scenes)")
-    found = []
-    for i in ids:
-        meta, im_ids = read_scene(present[i])
-        found.append(Scene(i, present[i], meta, im_ids))
+    found = [dataset.scene(i) for i in ids]
     if robots:
         from syneepose.robots.catalog import load_catalog
 
         wanted = set(load_catalog().parse_configs(robots))
         found = [s for s in found if s.config in wanted]
     if not found:
-        raise UserError(f"--dataset {split_dir.parent}: no scene matches --scenes {scenes} --robots {robots}")
+        raise UserError(f"--dataset {dataset.root}: no scene matches --scenes {scenes} --robots {robots}")
     return found
 
 
-def observation(scene: Scene, im_id: int, depth_dir: str, cameras: dict, noise: MaskNoise | None):
+def observation(scene: Scene, im_id: int, depth_dir: str, noise: MaskNoise | None):
     """The observation a method sees and the ground truth T_cam_ee it is scored against."""
-    frame = read_frame(scene.path, im_id)
+    frame = scene.frame(im_id)
     robot = None if frame.link_ids is None else frame.link_ids > 0
     if noise is not None:  # the end-effector's draw first: runs from before robot masks see the same masks
         rng = frame_rng(noise, scene.scene_id, im_id)
@@ -96,12 +82,7 @@ def observation(scene: Scene, im_id: int, depth_dir: str, cameras: dict, noise: 
         robot = None if robot is None else perturb(robot, noise, rng)
     else:
         mask = frame.mask_visib
-    depth = frame.depth
-    if depth_dir != "depth":
-        path = scene.path / depth_dir / f"{im_id:06d}.png"
-        if not path.is_file():
-            raise UserError(f"{path}: missing; --depth-dir {depth_dir} needs that folder beside depth/ in every scene")
-        depth = read_png(path) * (cameras[str(im_id)]["depth_scale"] / 1000.0)
+    depth = frame.depth if depth_dir == "depth" else scene.depth(im_id, depth_dir)
     obs = Observation(im_id=im_id, rgb=frame.rgb, depth=depth, mask=mask, K=frame.K,
                       joint_positions=frame.joint_positions, T_base_ee=frame.T_base_ee, robot_mask=robot)
     return obs, frame.T_cam_ee
@@ -143,7 +124,7 @@ def rescore_scene(out: Path, scene: Scene, model: EvalModel) -> list[FrameErrors
     results, rows = read_results(results_csv), sorted(read_errors(errors_csv), key=lambda r: r.im_id)
     found = [results.get((scene.scene_id, r.im_id, scene.meta.obj_id)) for r in rows]
     T_est = np.stack([NO_POSE if f is None else f.T_cam_ee for f in found])
-    gt = read_gt_poses(scene.path)
+    gt = scene.gt_poses()
     add_m, adds_m = _pose_errors(scene, [r.im_id for r in rows], T_est, np.stack([gt[r.im_id] for r in rows]), model)
     return [dataclasses.replace(r, add_m=float(a), adds_m=float(b)) for r, a, b in zip(rows, add_m, adds_m)]
 
@@ -152,10 +133,9 @@ def run_scene(method, scene: Scene, depth_dir: str, model: EvalModel, bar,
               noise: MaskNoise | None = None) -> tuple[list, list]:
     """The method over one scene in frame order; returns its BOP results and its error rows."""
     method.start_scene(dataclasses.replace(scene.meta, T_cam_base=NO_POSE.copy()), scene.path)
-    cameras = read_json(scene.path / "scene_camera.json")
     T_gt, estimates, wall_s = [], [], []
     for im_id in scene.im_ids:
-        obs, T_cam_ee = observation(scene, im_id, depth_dir, cameras, noise)
+        obs, T_cam_ee = observation(scene, im_id, depth_dir, noise)
         start = time.perf_counter()
         estimates.append(method.estimate(obs))
         wall_s.append(time.perf_counter() - start)
@@ -260,16 +240,15 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
              robots: str | None = None, depth_dir: str = "depth", noise: MaskNoise | None = None) -> dict:
     """Runs (or resumes) the evaluation and returns the summary it wrote to <out>/summary.json."""
     method = build_method(method_name, options)
-    dataset, out = Path(dataset).resolve(), Path(out)
-    info, opts = read_dataset_info(dataset), method.options()
-    split = split_name(dataset)
-    selected = find_scenes(dataset / split, scenes, robots)
+    data, out = Dataset(Path(dataset).resolve()), Path(out)
+    dataset, info, opts, split = data.root, data.info, method.options(), data.split
+    selected = find_scenes(data, scenes, robots)
     identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir}
     if noise is not None:  # only when on: runs on exact masks keep the identity they had before the option
         identity["mask_noise"] = noise.describe()
     models = {obj_id: load_eval_model(dataset, obj_id) for obj_id in sorted({s.meta.obj_id for s in selected})}
     if hasattr(method, "check"):
-        method.check({i: complete_frames(p) for i, p in scene_dirs(dataset / split).items()}, dataset / split)
+        method.check({i: complete_frames(p) for i, p in data.scene_dirs().items()}, data.split_dir)
     _claim(out, identity)
     fingerprints = {s.scene_id: scene_fingerprint(s.path, s.im_ids, depth_dir, models[s.meta.obj_id].sha256,
                                                   _method_inputs(method, s), QUERY_RULE) for s in selected}

@@ -31,13 +31,13 @@ from eval.mask_noise import MaskNoise, mask_noise
 from eval.methods import build_method
 from eval.methods.base import Estimate
 from eval.metrics import WORKSPACE_POINTS, calibration_error
-from eval.run import NO_POSE, Scene, observation
+from eval.run import NO_POSE, observation
 from eval.tables import method_label
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
-from kernel.bop import read_dataset_info, read_scene, scene_dirs, split_dir
 from kernel.cli import output_dir, run_command
+from kernel.dataset import Dataset, Scene
 from kernel.errors import UserError
-from kernel.files import read_json, write_atomic
+from kernel.files import write_atomic
 
 VIEWS = (3, 5, 10, 15, 20)
 FIELDS = ("method", "scene_id", "config", "views", "draw", "points_mm", "rot_deg", "detected")
@@ -55,21 +55,23 @@ class Trial:
     detected: int  # frames the method could use (board found / FEEPE gave a pose)
 
 
-def _pairs(marker_root: Path, plain_root: Path) -> list[tuple[Path, Path]]:
-    marker, plain = scene_dirs(split_dir(marker_root)), scene_dirs(split_dir(plain_root))
-    common = sorted(set(marker) & set(plain))
+def _pairs(marker_root: Path, plain_root: Path) -> list[tuple[Scene, Scene]]:
+    """The scenes of the marker data set with their twins (same id) in the plain one."""
+    marker, plain = Dataset(marker_root), Dataset(plain_root)
+    common = sorted(set(marker.scene_dirs()) & set(plain.scene_dirs()))
     if not common:
-        raise UserError(f"no scene is in both {split_dir(marker_root)} and {split_dir(plain_root)}; render the "
+        raise UserError(f"no scene is in both {marker.split_dir} and {plain.split_dir}; render the "
                         "same --preset/--seed/--robots twice, once with --marker")
-    for name in common:
-        m_meta, m_ids = read_scene(marker[name])
-        p_meta, p_ids = read_scene(plain[name])
-        if m_meta.marker is None:
-            raise UserError(f"{marker[name]}: no marker board; render it with --marker")
-        if not np.allclose(m_meta.T_cam_base, p_meta.T_cam_base, atol=1e-9) or m_ids != p_ids:
-            raise UserError(f"scene {name}: the marker and plain renders differ (camera or frames); render both "
+    pairs = []
+    for scene_id in common:
+        m, p = marker.scene(scene_id), plain.scene(scene_id)
+        if m.meta.marker is None:
+            raise UserError(f"{m.path}: no marker board; render it with --marker")
+        if not np.allclose(m.meta.T_cam_base, p.meta.T_cam_base, atol=1e-9) or m.im_ids != p.im_ids:
+            raise UserError(f"scene {scene_id}: the marker and plain renders differ (camera or frames); render both "
                             "with the same preset, seed, robots and frame count")
-    return [(marker[n], plain[n]) for n in common]
+        pairs.append((m, p))
+    return pairs
 
 
 def _error(T_est: np.ndarray | None, T_gt: np.ndarray) -> tuple[float, float]:
@@ -80,7 +82,7 @@ def _error(T_est: np.ndarray | None, T_gt: np.ndarray) -> tuple[float, float]:
 
 
 def _depth_label(root: Path, depth_dir: str) -> str:
-    kind = read_dataset_info(root).get("depth_dirs", {}).get(depth_dir, "exact")
+    kind = Dataset(root).info.get("depth_dirs", {}).get(depth_dir, "exact")
     return f"{kind} depth" if kind != "exact" else ""
 
 
@@ -111,37 +113,33 @@ def _online(method, scene: Scene, observations: list) -> list[Estimate]:
 
 
 def _observations(scene: Scene, depth_dir: str, noise: MaskNoise | None) -> dict:
-    cameras = read_json(scene.path / "scene_camera.json")
-    return {i: observation(scene, i, depth_dir, cameras, noise)[0] for i in scene.im_ids}
+    return {i: observation(scene, i, depth_dir, noise)[0] for i in scene.im_ids}
 
 
 def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: int = 0, hand_eye: str = "tsai",
         feepe: dict | None = None, depth_dir: str = "depth", noise: MaskNoise | None = None) -> list[Trial]:
     """`feepe`: the FEEPE method's options as `eval.run --method feepe` takes them (variant, icp, refine, ...)."""
     pairs = _pairs(Path(marker_root), Path(plain_root))
-    _check(views, draws, seed, min(len(read_scene(m)[1]) for m, _ in pairs))
+    _check(views, draws, seed, min(len(m.im_ids) for m, _ in pairs))
     marker = build_method("handeye", {"hand_eye": hand_eye})
     estimator = build_method("feepe", feepe or {})
     feepe_name = feepe_label(estimator.options(), Path(plain_root), depth_dir, noise)
-    preset = Path(read_dataset_info(Path(marker_root)).get("preset") or "targeting").stem
+    preset = Path(Dataset(Path(marker_root)).info.get("preset") or "targeting").stem
     marker_name = "marker hand-eye" + (f" ({preset})" if preset != "targeting" else "")  # the old rows' name
     trials, rng = [], np.random.default_rng(seed)
     bar = tqdm(total=len(pairs) * len(views) * draws, unit="trial", desc="targeting")
-    for marker_dir, plain_dir in pairs:
-        meta, ids = read_scene(marker_dir)
-        config, scene_id = f"{meta.arm}+{meta.end_effector}", int(marker_dir.name)
-        marker_scene = Scene(scene_id, marker_dir, meta, ids)
-        plain_scene = Scene(scene_id, plain_dir, read_scene(plain_dir)[0], ids)
+    for marker_scene, plain_scene in pairs:
+        config, scene_id, ids = marker_scene.config, marker_scene.scene_id, marker_scene.im_ids
         boards, frames = _observations(marker_scene, "depth", None), _observations(plain_scene, depth_dir, noise)
         for n in views:
             for draw in range(draws):
                 chosen = sorted(rng.choice(ids, n, replace=False).tolist())
                 by_board = _online(marker, marker_scene, [boards[i] for i in chosen])
                 trials.append(Trial(marker_name, scene_id, config, n, draw,
-                                    *_error(by_board[-1].T_cam_base, meta.T_cam_base), by_board[-1].extra["views"]))
+                                    *_error(by_board[-1].T_cam_base, marker_scene.meta.T_cam_base), by_board[-1].extra["views"]))
                 by_feepe = _online(estimator, plain_scene, [frames[i] for i in chosen])
                 trials.append(Trial(feepe_name, scene_id, config, n, draw,
-                                    *_error(by_feepe[-1].T_cam_base, meta.T_cam_base),
+                                    *_error(by_feepe[-1].T_cam_base, marker_scene.meta.T_cam_base),
                                     sum(r.T_cam_ee is not None for r in by_feepe)))
                 bar.update()
     bar.close()

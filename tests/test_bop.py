@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kernel import bop, files
+from kernel import files
 from kernel.bop import Frame, SceneMeta, SceneWriter, gt_info, read_frame, read_scene
 from kernel.errors import UserError
 from kernel.transforms import make_T

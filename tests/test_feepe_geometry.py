@@ -2,18 +2,17 @@
 symmetry."""
 
 import numpy as np
-import pytest
 from scipy.spatial.transform import Rotation
 
 from feepe.candidates import Candidate
 from feepe.crop import crop_around_mask
-from feepe.depth import backproject, normal_map
+from feepe.depth import normal_map
 from feepe.matching import best_buddies
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.optimize import OptimizeOptions, optimize, stack
 from feepe.pnp import solve_pnp
 from feepe.symmetry import consensus
-from kernel.transforms import inv_T, make_T, rotation_angle, transform_points
+from kernel.transforms import make_T, rotation_angle, transform_points
 
 K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
 

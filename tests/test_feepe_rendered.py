@@ -2,7 +2,6 @@
 variants, depth alignment, and frames it cannot use."""
 
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -4,7 +4,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from syneepose.robots.catalog import load_catalog
 from syneepose.robots.sources import ensure_source
 from tests.mujoco_reference import reference_model
 

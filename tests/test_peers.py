@@ -8,7 +8,7 @@ from eval.handeye import METHODS, BoardDetector, calibrate
 from eval.ppf import PpfDetector
 from feepe.icp import SurfaceModel
 from kernel.errors import UserError
-from kernel.transforms import inv_T, make_T, rotation_angle, transform_points
+from kernel.transforms import make_T, rotation_angle, transform_points
 from syneepose.scene.marker import MarkerBoard, board_pose, mount_facing_camera
 
 

@@ -17,7 +17,6 @@ import pytest
 import trimesh
 
 from kernel.bop import read_frame, read_scene, split_dir
-from kernel.transforms import transform_points
 from syneepose.robots.robot import load_robot
 
 # One configuration per end-effector, the arms rotating through.

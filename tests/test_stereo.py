@@ -7,11 +7,10 @@ import sys
 
 import cv2
 import numpy as np
-import pytest
 
 from kernel.bop import read_frame, read_scene, split_dir
 from kernel.transforms import make_T
-from syneepose.stereo import load_profile, refine_disparity, stereo_depth, to_rgb_camera
+from syneepose.stereo import load_profile, refine_disparity, to_rgb_camera
 
 PLANE_SCRIPT = """
 import sys, numpy as np

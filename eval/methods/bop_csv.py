@@ -10,8 +10,8 @@ from eval.bop_results import BopResult, read_results
 from eval.methods import option, register
 from eval.methods.base import Estimate, Observation
 from kernel.bop import SceneMeta
+from kernel.dataset import Dataset
 from kernel.errors import UserError
-from kernel.files import read_json
 
 
 @dataclass(frozen=True)
@@ -38,11 +38,7 @@ class BopCsv:
     def check(self, scenes: dict[int, list[int]], split_dir: Path) -> None:
         """Every row must name an object, a scene and a frame of the data set: a row that cannot be placed is a
         mistake in the file (another split, another data set), not a frame to skip."""
-        models_info = Path(split_dir).parent / "models" / "models_info.json"
-        if not models_info.is_file():
-            raise UserError(f"{models_info}: missing; the data set needs its models/ folder")
-        obj_ids = [int(k) for k in read_json(models_info, "copy the models again")]
-        self._by_key = read_results(self.results, obj_ids, list(scenes))
+        self._by_key = read_results(self.results, Dataset(Path(split_dir).parent).obj_ids(), list(scenes))
         frames = {s: set(ids) for s, ids in scenes.items()}
         stray = sorted((s, i) for s, i, _ in self._by_key if i not in frames[s])
         if stray:

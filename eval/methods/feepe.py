@@ -26,6 +26,7 @@ from feepe.estimator import (REFINEMENTS, SILHOUETTES, VARIANTS, Estimator, Feep
 from feepe.onboarding import onboard
 from feepe.silhouette import SilhouetteModel
 from kernel.bop import SceneMeta
+from kernel.dataset import Dataset
 from kernel.errors import UserError
 from kernel.template_set import find_template_set
 
@@ -91,10 +92,11 @@ class Feepe:
 
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
         """The template set of the scene's end-effector, and the model `--icp` / `--refine` align."""
-        root = Path(self.templates_dir) if self.templates_dir else Path(scene_dir).parents[1] / "templates"
+        dataset = Dataset.of_scene(scene_dir)
+        root = Path(self.templates_dir) if self.templates_dir else dataset.templates_dir
         found = [find_template_set(root, meta.end_effector, self.n_templates)]
         if self.opts.needs_surface or self.opts.refine != "none":  # the depth terms, the silhouette
-            found.append(Path(scene_dir).parents[1] / "models" / f"obj_{meta.obj_id:06d}.ply")
+            found.append(dataset.model_path(meta.obj_id))
         return found
 
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:

@@ -13,6 +13,7 @@ from eval.methods.base import Estimate, Observation
 from eval.ppf import PpfDetector, PpfOptions, scene_cloud
 from feepe.icp import SurfaceModel
 from kernel.bop import SceneMeta
+from kernel.dataset import Dataset
 
 
 @register("ppf")
@@ -28,7 +29,7 @@ class Ppf:
         return {"name": "PPF + ICP", "ppf": vars(self.opts)}
 
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
-        return [Path(scene_dir).parents[1] / "models" / f"obj_{meta.obj_id:06d}.ply"]
+        return [Dataset.of_scene(scene_dir).model_path(meta.obj_id)]
 
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
         if meta.obj_id not in self._detectors:
