@@ -23,6 +23,7 @@ from kernel.transforms import inv_T
 from syneepose import __version__, paths
 from syneepose.preset import Preset, load_preset
 from syneepose.robots.catalog import load_catalog
+from syneepose.scene.spec import RenderSettings
 
 # BOP methods (SAM-6D, FoundationPose, MegaPose) and bop_toolkit's eval scripts read `test` + test_targets.
 SPLIT = "test"
@@ -114,18 +115,15 @@ def run_job(job: Job) -> int:
     robot = load_robot(job.config, Path(job.assets))
     mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name, Path(job.assets)))
     spec = plan_segment(preset, robot, MotionChecks(robot, mesh), job.scene_id, job.seed, job.frames,
-                        job.width, job.height, job.samples, list(job.backgrounds))
-    spec.device = job.device
+                        job.width, job.height, list(job.backgrounds))
     if not job.marker:
         spec.marker = None  # a stations plan mounts its board whether it is drawn or not: the plain twin
     elif spec.marker is None:
         spec.marker = _mounted_board(preset, robot, mesh, spec)
-    if job.depth != "exact":
-        from syneepose.stereo import load_profile
-
-        spec.depth_mode, spec.sensor = job.depth, load_profile(job.sensor)
+    render = RenderSettings(job.width, job.height, job.samples, preset.render.denoise, preset.render.max_bounces,
+                            job.device, job.depth, job.sensor)
     with _quiet_stdout():
-        return render_segment(spec, robot, job.scene_dir, settings=job_settings(job))
+        return render_segment(spec, render, robot, job.scene_dir, settings=job_settings(job))
 
 
 def _mounted_board(preset: Preset, robot, mesh, spec):

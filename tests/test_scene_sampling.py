@@ -88,12 +88,12 @@ def test_self_collision_known_poses(ur5e_checks):
     assert checks.self_collision(folded[None])[0]
 
 
-def _planned_twice(preset, robot, checks, scene_id, seed, frames, width, height):
+def _planned_twice(preset, robot, checks, stream, seed, frames, width, height):
     """The segment plan, asserted to be the same when planned again with the same seed."""
     from syneepose.scene.plan import plan_segment
 
-    spec = plan_segment(preset, robot, checks, scene_id, seed, frames, width, height, 2)
-    again = plan_segment(preset, robot, checks, scene_id, seed, frames, width, height, 2)
+    spec = plan_segment(preset, robot, checks, stream, seed, frames, width, height)
+    again = plan_segment(preset, robot, checks, stream, seed, frames, width, height)
     np.testing.assert_array_equal(spec.q, again.q)
     np.testing.assert_array_equal(spec.T_base_cam, again.T_base_cam)
     if spec.marker is not None:
