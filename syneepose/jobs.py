@@ -1,7 +1,7 @@
 """The render job list: one job = one segment = one BOP scene, in its own worker process.
 
-Scene ids are stable: configuration index in the catalogue x segments per configuration + segment,
-so a shard, a resumed run or a `--robots` subset writes the same scene as the full run.
+Scene ids and each segment's random stream come from scene_ids.py: stable, so a shard, a resumed run, a
+`--robots` subset or a run with more configurations or segments writes the same scene as the full run.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from kernel import bop
 from kernel.errors import UserError
 from kernel.files import write_json
 from kernel.transforms import inv_T
-from syneepose import __version__, paths
+from syneepose import __version__, paths, scene_ids
 from syneepose.preset import Preset, load_preset
 from syneepose.robots.catalog import load_catalog
 from syneepose.scene.spec import RenderSettings
@@ -54,9 +54,9 @@ class Selection:
 
 @dataclass(frozen=True)
 class Job:
-    config: str
-    segment: int
+    key: scene_ids.Key
     scene_id: int
+    stream: int  # scene_ids.stream: seeds the segment
     content: Content
     render: RenderSettings
     out: str
@@ -64,7 +64,7 @@ class Job:
     settings: dict = field(compare=False)  # job_settings: recorded with the frames, the same for every job
 
     def __str__(self) -> str:
-        return f"scene {self.scene_id:06d} ({self.config}, segment {self.segment})"
+        return f"scene {self.scene_id:06d} ({self.key.config}, segment {self.key.segment})"
 
     @property
     def frames(self) -> int:
@@ -81,6 +81,7 @@ class Plan:
     """A run's jobs (its shard's) and what dataset_info.json records of it."""
 
     jobs: list[Job]
+    scenes: dict[int, scene_ids.Key]  # every scene of the data set after the run, by id (scene_ids.number)
     content: Content
     render: RenderSettings
     selection: Selection
@@ -100,19 +101,22 @@ def parse_shard(text: str | None) -> tuple[int, int]:
 
 
 def make_jobs(content: Content, render: RenderSettings, selection: Selection, out: Path, assets: Path) -> Plan:
-    all_configs = load_catalog().configurations
-    settings = job_settings(content, render, selection.segments)
-    jobs = [Job(config, segment, all_configs.index(config) * selection.segments + segment, content, render,
-                str(out), str(assets), settings)
-            for config in selection.configs for segment in range(selection.segments)]
+    """Reads the data set in `out` for its scene ids (scene_ids.number), and refuses one they cannot be told for."""
+    keys = [scene_ids.Key(config, segment) for config in selection.configs for segment in range(selection.segments)]
+    scenes, segments = scene_ids.number(out, keys, selection.segments)
+    ids, configurations = {key: sid for sid, key in scenes.items()}, load_catalog().configurations
+    settings = job_settings(content, render, segments)
+    jobs = [Job(key, ids[key], scene_ids.stream(key, segments, configurations), content, render, str(out),
+                str(assets), settings) for key in keys]
     i, n = selection.shard
-    return Plan(jobs[i::n], content, render, selection, settings)
+    return Plan(jobs[i::n], scenes, content, render, selection, settings)
 
 
 def job_settings(content: Content, render: RenderSettings, segments: int) -> dict:
-    """What fixes a segment's pixels and ground truth, beside its configuration and scene id: a resume must
-    ask for exactly these, or it would mix two renders in one scene. The preset and the sensor profile count
-    by content (a sha256 of what was read), not by name."""
+    """What fixes a segment's pixels and ground truth, beside its configuration and segment index: a resume
+    must ask for exactly these, or it would mix two renders in one scene. The preset and the sensor profile
+    count by content (a sha256 of what was read), not by name; `segments` is the data set's S (scene_ids.py),
+    which numbers the random streams and stays when a run asks for more segments."""
     from syneepose.stereo import load_profile
 
     return {"preset": Path(content.preset_name).stem,
@@ -141,9 +145,9 @@ def run_job(job: Job) -> int:
     from syneepose.scene.plan import plan_segment
 
     content, render = job.content, job.render
-    robot = load_robot(job.config, Path(job.assets))
+    robot = load_robot(job.key.config, Path(job.assets))
     mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name, Path(job.assets)))
-    spec = plan_segment(content.preset, robot, MotionChecks(robot, mesh), job.scene_id, content.seed, job.frames,
+    spec = plan_segment(content.preset, robot, MotionChecks(robot, mesh), job.stream, content.seed, job.frames,
                         render.width, render.height, list(content.backgrounds))
     if not content.marker:
         spec.marker = None  # a stations plan mounts its board whether it is drawn or not: the plain twin
@@ -232,6 +236,7 @@ def write_dataset_info(out: Path, plan: Plan, assets: Path) -> None:
         "depth_dirs": {"depth": "exact" if depth == "exact" else "stereo sensor",
                        **({"depth_gt": "exact"} if depth != "exact" else {})},
         "versions": {"syneepose": __version__, "bpy": version("bpy")}, "settings": plan.settings,
+        "scenes": {str(sid): {"config": key.config, "segment": key.segment} for sid, key in plan.scenes.items()},
     })
     if depth != "exact":
         from syneepose.stereo import load_profile
