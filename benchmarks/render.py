@@ -13,11 +13,12 @@ from pathlib import Path
 from syneepose import paths
 from syneepose.blender import scene as bscene
 from syneepose.blender.segment import render_segment
-from syneepose.preset import Render, load_preset
+from syneepose.preset import load_preset
 from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.robot import load_robot
 from syneepose.scene.motion import MotionChecks
 from syneepose.scene.plan import plan_segment
+from syneepose.scene.spec import RenderSettings
 
 CONFIG = "ur5e+robotiq_2f85"
 
@@ -32,17 +33,17 @@ def rss_mb() -> float:
 def spec_for(frames: int, width: int, height: int, samples: int):
     robot = load_robot(CONFIG)
     mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name))
-    preset = load_preset("mini").model_copy(update={"render": Render(denoise=False, max_bounces=12)})
-    return robot, plan_segment(preset, robot, MotionChecks(robot, mesh), 0, 0, frames, width, height, samples)
+    spec = plan_segment(load_preset("mini"), robot, MotionChecks(robot, mesh), 0, 0, frames, width, height)
+    return robot, spec, RenderSettings(width, height, samples, denoise=False, max_bounces=12)
 
 
-def bare_cycles(robot, spec, frames: int) -> float:
+def bare_cycles(robot, spec, render, frames: int) -> float:
     """The same scene and poses, timing only bpy's render call (no FK, EXR read, PNG or JSON)."""
     import bpy
 
-    bscene.reset(spec.width, spec.height, spec.samples, spec.denoise, spec.max_bounces, spec.world_color,
+    bscene.reset(render.width, render.height, render.samples, render.denoise, render.max_bounces, spec.world_color,
                  spec.world_strength)
-    bscene.set_camera(spec.K, spec.width, spec.height, spec.T_base_cam)
+    bscene.set_camera(spec.K, render.width, render.height, spec.T_base_cam)
     bscene.add_lights(spec.lights)
     bscene.add_planes(spec.planes)
     bscene.add_distractors(spec.distractors)
@@ -62,18 +63,18 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="3 frames and a 60-frame memory run")
     args = parser.parse_args()
     frames = 3 if args.quick else 6
-    robot, spec = spec_for(frames, 640, 480, 16)
+    robot, spec, render = spec_for(frames, 640, 480, 16)
     with tempfile.TemporaryDirectory() as tmp:
-        render_segment(spec, robot, Path(tmp) / "warm", None)  # first frame includes scene build
+        render_segment(spec, render, robot, Path(tmp) / "warm", None)  # first frame includes scene build
         t0 = time.perf_counter()
-        render_segment(spec, robot, Path(tmp) / "timed", None)
+        render_segment(spec, render, robot, Path(tmp) / "timed", None)
         ours = (time.perf_counter() - t0) / frames
-    bare = bare_cycles(robot, spec, frames)
+    bare = bare_cycles(robot, spec, render, frames)
     print(f"640x480, 16 spp, {frames} frames, {CONFIG}: ours {ours:.2f} s/frame (incl. scene build), "
           f"bare Cycles {bare:.2f} s/frame, overhead {100 * (ours - bare) / bare:+.1f} %")
 
     n = 60 if args.quick else 300
-    robot, spec = spec_for(n, 160, 120, 1)
+    robot, spec, render = spec_for(n, 160, 120, 1)
     marks = {}
     with tempfile.TemporaryDirectory() as tmp:
         done = [0]
@@ -83,7 +84,7 @@ def main() -> None:
             if done[0] in (1, n // 3, 2 * n // 3, n):
                 marks[done[0]] = rss_mb()
 
-        render_segment(spec, robot, Path(tmp) / "memory", progress)
+        render_segment(spec, render, robot, Path(tmp) / "memory", progress)
     print(f"resident memory over a {n}-frame segment (160x120, 1 spp): "
           + ", ".join(f"frame {k}: {v:.0f} MB" for k, v in sorted(marks.items())))
 

@@ -52,12 +52,12 @@ def _render(args) -> None:
     from syneepose import paths, resume
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
+    from syneepose.scene.spec import RenderSettings
 
     _check_run(args)
     preset = load_preset(args.preset, {"segments": args.segments, "frames": args.frames, "samples": args.samples,
                                        "resolution": _resolution(args.resolution)})
     configs = load_catalog().parse_configs(args.robots)
-    width, height = preset.resolution
     shard = J.parse_shard(args.shard)
     backgrounds = ()
     if args.backgrounds:
@@ -73,15 +73,16 @@ def _render(args) -> None:
     _writable(out)  # after every check of the flags: a mistake writes nothing
     assets = paths.assets_dir()
     build_assets(assets, configs, log=lambda *_: None)
-    jobs = J.make_jobs(args.preset, preset, out, configs, args.seed, preset.segments, preset.frames,
-                       width, height, preset.samples, assets, backgrounds,
-                       shard, args.device, args.marker, args.depth, args.sensor)
-    settings = J.job_settings(jobs[0]) if jobs else None
-    if settings is not None:
-        stale = resume.check_resume(out, jobs, settings, args.overwrite)
-        resume.remove_leftovers(out, jobs)
-        resume.clear_scenes(stale)
-    J.write_dataset_info(out, args.preset, jobs, configs, assets, settings)
+    content = J.Content(preset, args.preset, args.seed, args.marker, backgrounds)
+    width, height = preset.resolution
+    render = RenderSettings(width, height, preset.samples, preset.render.denoise, preset.render.max_bounces,
+                            args.device, args.depth, args.sensor)
+    plan = J.make_jobs(content, render, J.Selection(tuple(configs), preset.segments, shard), out, assets)
+    jobs = plan.jobs
+    stale = resume.check_resume(out, jobs, plan.settings, args.overwrite)
+    resume.remove_leftovers(out, jobs)
+    resume.clear_scenes(stale)
+    J.write_dataset_info(out, plan, assets)
     done_before = {j: J.frames_done(j) for j in jobs}
     todo = [j for j in jobs if done_before[j] < j.frames]
     bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="frame", desc="render")

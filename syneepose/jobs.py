@@ -1,7 +1,7 @@
 """The render job list: one job = one segment = one BOP scene, in its own worker process.
 
-Scene ids are stable: configuration index in the catalogue x segments per configuration + segment,
-so a shard, a resumed run or a `--robots` subset writes the same scene as the full run.
+Scene ids and each segment's random stream come from scene_ids.py: stable, so a shard, a resumed run, a
+`--robots` subset or a run with more configurations or segments writes the same scene as the full run.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import json
 import os
 import shutil
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field
 from importlib.metadata import version
 from pathlib import Path
 
@@ -19,38 +19,73 @@ import numpy as np
 
 from kernel import bop
 from kernel.errors import UserError
+from kernel.files import write_json
 from kernel.transforms import inv_T
-from syneepose import __version__, paths
+from syneepose import __version__, paths, scene_ids
 from syneepose.preset import Preset, load_preset
 from syneepose.robots.catalog import load_catalog
+from syneepose.scene.spec import RenderSettings
 
 # BOP methods (SAM-6D, FoundationPose, MegaPose) and bop_toolkit's eval scripts read `test` + test_targets.
 SPLIT = "test"
 NAME = "syneepose"  # the BOP data set name of result files: METHOD_syneepose-test.csv
+
+
+@dataclass(frozen=True)
+class Content:
+    """What a run's segments show beside each one's configuration and segment index: with those it fixes
+    a scene (trajectory, camera, lights, backdrop, board), however it is rendered."""
+
+    preset: Preset  # validated with the command line's values (syneepose/preset.py)
+    preset_name: str  # --preset as given: a name in scenes/ or a YAML path (recorded, and digested as read)
+    seed: int
+    marker: bool = False  # a ChArUco board bolted to the end-effector
+    backgrounds: tuple[str, ...] = ()  # wall images drawn from at random
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Which segments a run renders: `segments` per configuration, every N-th of them with shard i/N."""
+
+    configs: tuple[str, ...]
+    segments: int
+    shard: tuple[int, int] = (0, 1)
+
+
 @dataclass(frozen=True)
 class Job:
-    config: str
+    key: scene_ids.Key
     scene_id: int
-    segment: int
-    seed: int
-    frames: int
-    width: int
-    height: int
-    samples: int
+    stream: int  # scene_ids.stream: seeds the segment
+    content: Content
+    render: RenderSettings
     out: str
-    preset: str
     assets: str
-    backgrounds: tuple[str, ...] = ()
-    device: str = "cpu"
-    marker: bool = False
-    depth: str = "exact"  # exact | stereo | both
-    sensor: str = "d435"  # a profile in scenes/sensors/ or a YAML path
-    segments: int = 1  # per configuration: with the catalogue, it numbers the scenes
+    settings: dict = field(compare=False)  # job_settings: recorded with the frames, the same for every job
+
+    def __str__(self) -> str:
+        return f"scene {self.scene_id:06d} ({self.key.config}, segment {self.key.segment})"
+
+    @property
+    def frames(self) -> int:
+        return self.content.preset.frames
 
     @property
     def scene_dir(self) -> Path:
         """In the split that dataset_info.json (written before any job runs) names, not this process's SPLIT."""
         return bop.split_dir(Path(self.out)) / f"{self.scene_id:06d}"
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A run's jobs (its shard's) and what dataset_info.json records of it."""
+
+    jobs: list[Job]
+    scenes: dict[int, scene_ids.Key]  # every scene of the data set after the run, by id (scene_ids.number)
+    content: Content
+    render: RenderSettings
+    selection: Selection
+    settings: dict  # job_settings
 
 
 def parse_shard(text: str | None) -> tuple[int, int]:
@@ -65,33 +100,32 @@ def parse_shard(text: str | None) -> tuple[int, int]:
     return i, n
 
 
-def make_jobs(preset_name: str, preset: Preset, out: Path, configs: list[str], seed: int, segments: int,
-              frames: int, width: int, height: int, samples: int, assets: Path,
-              backgrounds: tuple[str, ...] = (), shard: tuple[int, int] = (0, 1), device: str = "cpu",
-              marker: bool = False, depth: str = "exact", sensor: str = "d435") -> list[Job]:
-    all_configs = load_catalog().configurations
-    jobs = []
-    for config in configs:
-        for segment in range(segments):
-            scene_id = all_configs.index(config) * segments + segment
-            jobs.append(Job(config, scene_id, segment, seed, frames, width, height, samples, str(out), preset_name,
-                            str(assets), backgrounds, device, marker, depth, sensor, segments))
-    i, n = shard
-    return jobs[i::n]
+def make_jobs(content: Content, render: RenderSettings, selection: Selection, out: Path, assets: Path) -> Plan:
+    """Reads the data set in `out` for its scene ids (scene_ids.number), and refuses one they cannot be told for."""
+    keys = [scene_ids.Key(config, segment) for config in selection.configs for segment in range(selection.segments)]
+    scenes, segments = scene_ids.number(out, keys, selection.segments)
+    ids, configurations = {key: sid for sid, key in scenes.items()}, load_catalog().configurations
+    settings = job_settings(content, render, segments)
+    jobs = [Job(key, ids[key], scene_ids.stream(key, segments, configurations), content, render, str(out),
+                str(assets), settings) for key in keys]
+    i, n = selection.shard
+    return Plan(jobs[i::n], scenes, content, render, selection, settings)
 
 
-def job_settings(job: Job) -> dict:
-    """What fixes a segment's pixels and ground truth, beside its configuration and scene id: a resume must
-    ask for exactly these, or it would mix two renders in one scene. The preset and the sensor profile count
-    by content (a sha256 of what was read), not by name."""
+def job_settings(content: Content, render: RenderSettings, segments: int) -> dict:
+    """What fixes a segment's pixels and ground truth, beside its configuration and segment index: a resume
+    must ask for exactly these, or it would mix two renders in one scene. The preset and the sensor profile
+    count by content (a sha256 of what was read), not by name; `segments` is the data set's S (scene_ids.py),
+    which numbers the random streams and stays when a run asks for more segments."""
     from syneepose.stereo import load_profile
 
-    return {"preset": Path(job.preset).stem, "preset_sha256": _digest(load_preset(job.preset).digest_content()),
-            "seed": job.seed, "segments": job.segments, "frames": job.frames,
-            "resolution": [job.width, job.height], "samples": job.samples, "device": job.device,
-            "marker": job.marker, "depth": job.depth,
-            "sensor_sha256": None if job.depth == "exact" else _digest(load_profile(job.sensor).source),
-            "backgrounds": [Path(b).name for b in job.backgrounds]}
+    return {"preset": Path(content.preset_name).stem,
+            "preset_sha256": _digest(load_preset(content.preset_name).digest_content()),
+            "seed": content.seed, "segments": segments, "frames": content.preset.frames,
+            "resolution": [render.width, render.height], "samples": render.samples, "device": render.device,
+            "marker": content.marker, "depth": render.depth,
+            "sensor_sha256": None if render.depth == "exact" else _digest(load_profile(render.sensor).source),
+            "backgrounds": [Path(b).name for b in content.backgrounds]}
 
 
 def _digest(content) -> str:
@@ -110,22 +144,17 @@ def run_job(job: Job) -> int:
     from syneepose.scene.motion import MotionChecks
     from syneepose.scene.plan import plan_segment
 
-    preset = load_preset(job.preset)
-    robot = load_robot(job.config, Path(job.assets))
+    content, render = job.content, job.render
+    robot = load_robot(job.key.config, Path(job.assets))
     mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name, Path(job.assets)))
-    spec = plan_segment(preset, robot, MotionChecks(robot, mesh), job.scene_id, job.seed, job.frames,
-                        job.width, job.height, job.samples, list(job.backgrounds))
-    spec.device = job.device
-    if not job.marker:
+    spec = plan_segment(content.preset, robot, MotionChecks(robot, mesh), job.stream, content.seed, job.frames,
+                        render.width, render.height, list(content.backgrounds))
+    if not content.marker:
         spec.marker = None  # a stations plan mounts its board whether it is drawn or not: the plain twin
     elif spec.marker is None:
-        spec.marker = _mounted_board(preset, robot, mesh, spec)
-    if job.depth != "exact":
-        from syneepose.stereo import load_profile
-
-        spec.depth_mode, spec.sensor = job.depth, load_profile(job.sensor)
+        spec.marker = _mounted_board(content.preset, robot, mesh, spec)
     with _quiet_stdout():
-        return render_segment(spec, robot, job.scene_dir, settings=job_settings(job))
+        return render_segment(spec, render, robot, job.scene_dir, settings=job.settings)
 
 
 def _mounted_board(preset: Preset, robot, mesh, spec):
@@ -189,36 +218,31 @@ def run_template_job(job: TemplateJob) -> int:
                                 job.resolution, job.samples, job.device)
 
 
-def write_dataset_info(out: Path, preset_name: str, jobs: list[Job], configs: list[str], assets: Path,
-                       settings: dict | None = None) -> None:
-    """`settings` (job_settings): what every scene of the data set was rendered with (resume.check_resume)."""
-    info_path = out / "dataset_info.json"
+def write_dataset_info(out: Path, plan: Plan, assets: Path) -> None:
+    """`plan.settings` (job_settings): what every scene of the data set was rendered with (resume.check_resume)."""
     info = bop.read_dataset_info(out)
-    first = asdict(jobs[0]) if jobs else {}
+    content, render, depth = plan.content, plan.render, plan.render.depth
     if info.get("split", SPLIT) != SPLIT and info.get("configurations"):
         raise UserError(f"{out} holds a data set in {info['split']}/ (dataset_info.json), renders now write "
                         f"{SPLIT}/; render into another --out (a data set never mixes splits)")
-    if info.get("depth", "exact") != first.get("depth", "exact") and info.get("configurations"):
-        raise UserError(f"{out} was rendered with --depth {info.get('depth', 'exact')}, not "
-                        f"{first.get('depth', 'exact')}; render into another folder (a data set never mixes depth kinds)")
+    if info.get("depth", "exact") != depth and info.get("configurations"):
+        raise UserError(f"{out} was rendered with --depth {info.get('depth', 'exact')}, not {depth}; render into "
+                        "another folder (a data set never mixes depth kinds)")
     info.update({
-        "name": NAME, "preset": preset_name, "seed": first.get("seed"), "frames_per_segment": first.get("frames"),
-        "resolution": [first.get("width"), first.get("height")], "samples": first.get("samples"),
-        "configurations": sorted(set(info.get("configurations", [])) | set(configs)),
-        "split": SPLIT, "depth_scale": bop.DEPTH_SCALE, "depth": first.get("depth", "exact"),
-        "depth_dirs": {"depth": "exact" if first.get("depth", "exact") == "exact" else "stereo sensor",
-                       **({"depth_gt": "exact"} if first.get("depth", "exact") != "exact" else {})},
-        "versions": {"syneepose": __version__, "bpy": version("bpy")},
+        "name": NAME, "preset": content.preset_name, "seed": content.seed, "frames_per_segment": content.preset.frames,
+        "resolution": [render.width, render.height], "samples": render.samples,
+        "configurations": sorted(set(info.get("configurations", [])) | set(plan.selection.configs)),
+        "split": SPLIT, "depth_scale": bop.DEPTH_SCALE, "depth": depth,
+        "depth_dirs": {"depth": "exact" if depth == "exact" else "stereo sensor",
+                       **({"depth_gt": "exact"} if depth != "exact" else {})},
+        "versions": {"syneepose": __version__, "bpy": version("bpy")}, "settings": plan.settings,
+        "scenes": {str(sid): {"config": key.config, "segment": key.segment} for sid, key in plan.scenes.items()},
     })
-    if settings is not None:
-        info["settings"] = settings
-    if info["depth"] != "exact":
+    if depth != "exact":
         from syneepose.stereo import load_profile
 
-        info["sensor"] = load_profile(first["sensor"]).source
-    tmp = info_path.with_name(f".{info_path.name}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(info, indent=2, sort_keys=True))
-    os.replace(tmp, info_path)
+        info["sensor"] = load_profile(render.sensor).source
+    write_json(out / "dataset_info.json", info)
     # models_eval/ (BOP's resampled evaluation models) is optional until the assets build makes it.
     for name, source in (("models", paths.models_dir(assets)), ("models_eval", paths.models_eval_dir(assets))):
         if not (out / name).is_dir() and (name == "models" or source.is_dir()):

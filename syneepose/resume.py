@@ -2,7 +2,8 @@
 and never mixes two settings in one data set (dataset_info.json then describes every file).
 
 Each segment records the settings that rendered it (`scene_robot.json` "settings", jobs.job_settings); a
-data set rendered before they were recorded is judged by what its dataset_info.json says.
+data set rendered before they were recorded is judged by what its dataset_info.json says. More --robots or
+--segments are not other settings: they add scenes, and every scene keeps its id (scene_ids.py).
 """
 
 from __future__ import annotations

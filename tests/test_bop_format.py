@@ -18,6 +18,7 @@ from kernel.transforms import make_T
 from syneepose import jobs
 from syneepose.preset import load_preset
 from syneepose.robots.catalog import load_catalog
+from syneepose.scene.spec import RenderSettings
 
 H, W, FRAMES = 12, 16, 12  # 12 frames: keys "10" and "11" sort before "2" as strings
 K = np.array([[20.0, 0.0, 7.5], [0.0, 20.0, 5.5], [0.0, 0.0, 1.0]])
@@ -169,8 +170,9 @@ def test_readers_take_the_split_from_dataset_info(tmp_path):
     assert split_dir(tmp_path) == tmp_path / "test"
 
 
-def _job(out):
-    return jobs.Job("ur5e+robotiq_2f85", 0, 0, 0, 4, W, H, 1, str(out), "mini", "")
+def _plan(out):
+    content = jobs.Content(load_preset("mini"), "mini", seed=0)
+    return jobs.make_jobs(content, RenderSettings(W, H, 1), jobs.Selection(("panda+panda_hand",), 1), out, out)
 
 
 def test_dataset_info_names_the_test_split_and_copies_models_eval_when_built(tmp_path):
@@ -178,14 +180,14 @@ def test_dataset_info_names_the_test_split_and_copies_models_eval_when_built(tmp
     (assets / "models").mkdir(parents=True)
     (assets / "models" / "obj_000001.ply").write_text("ply")
     out.mkdir()
-    jobs.write_dataset_info(out, "mini", [_job(out)], ["ur5e+robotiq_2f85"], assets)
+    jobs.write_dataset_info(out, _plan(out), assets)
     info = _load(out / "dataset_info.json")
     assert (info["name"], info["split"]) == ("syneepose", "test") and jobs.SPLIT == "test"
     assert (out / "models" / "obj_000001.ply").is_file() and not (out / "models_eval").exists()
-    assert _job(out).scene_dir == out / "test" / "000000"
+    assert _plan(out).jobs[0].scene_dir == out / "test" / "000000"
     (assets / "models_eval").mkdir()
     (assets / "models_eval" / "obj_000001.ply").write_text("eval ply")
-    jobs.write_dataset_info(out, "mini", [_job(out)], ["ur5e+robotiq_2f85"], assets)
+    jobs.write_dataset_info(out, _plan(out), assets)
     assert (out / "models_eval" / "obj_000001.ply").read_text() == "eval ply"
     assert not [p for p in out.iterdir() if ".tmp" in p.name]
 
@@ -204,9 +206,10 @@ def test_a_full_disk_while_copying_the_models_leaves_no_half_folder(tmp_path, mo
         (Path(dst) / "obj_000001.ply").write_text("pl")
         raise OSError(errno.ENOSPC, "No space left on device", str(dst))
 
+    plan = _plan(out)
     monkeypatch.setattr(shutil, "copytree", full)
     with pytest.raises(UserError, match="No space left on device.*free space"):
-        jobs.write_dataset_info(out, "mini", [_job(out)], ["ur5e+robotiq_2f85"], assets)
+        jobs.write_dataset_info(out, plan, assets)
     assert sorted(p.name for p in out.iterdir()) == ["dataset_info.json"]
 
 
@@ -214,12 +217,13 @@ def test_resuming_a_train_data_set_is_refused(tmp_path):
     out = tmp_path / "old"
     out.mkdir()
     (out / "dataset_info.json").write_text(json.dumps({"split": "train", "configurations": ["ur5e+robotiq_2f85"]}))
+    plan = _plan(out)
     with pytest.raises(UserError) as err:
-        jobs.write_dataset_info(out, "mini", [_job(out)], ["ur5e+robotiq_2f85"], tmp_path)
+        jobs.write_dataset_info(out, plan, tmp_path)
     assert str(out) in str(err.value) and "another --out" in str(err.value) and "\n" not in str(err.value)
     assert _load(out / "dataset_info.json")["split"] == "train"
     # a worker started by an older main process writes where that process's dataset_info.json says
-    assert _job(out).scene_dir == out / "train" / "000000"
+    assert plan.jobs[0].scene_dir == out / "train" / "000000"
 
 
 def test_camera_json_is_the_presets_nominal_camera(tmp_path):

@@ -12,7 +12,8 @@ import pytest
 
 from kernel.bop import split_dir
 
-ROBOT = "ur5e+robotiq_2f85"
+ROBOT = "ur5e+robotiq_2f85"  # scene 7: 7th in the catalogue, one segment per configuration
+OTHER = "panda+panda_hand"  # 0th
 TINY = ["--preset", "mini", "--resolution", "64x48", "--samples", "2", "--segments", "1", "--frames", "2",
         "--robots", ROBOT]
 
@@ -102,14 +103,80 @@ def test_a_resume_removes_what_a_killed_run_left(copy):
     assert not [p for p in leftovers if p.exists()]
 
 
-def test_a_data_set_from_before_recorded_settings_is_judged_by_its_dataset_info(copy):
-    for path in (copy / "dataset_info.json", _scene(copy) / "scene_robot.json"):
+def _from_before(out, *keys):
+    """The data set as written before dataset_info.json and scene_robot.json held `keys`."""
+    for path in (out / "dataset_info.json", _scene(out) / "scene_robot.json"):
         content = json.loads(path.read_text())
-        del content["settings"]
+        for key in keys:
+            content.pop(key, None)
         path.write_text(json.dumps(content))
+
+
+def test_a_data_set_from_before_recorded_settings_is_judged_by_its_dataset_info(copy):
+    _from_before(copy, "settings", "scenes")
     _one_line(_render(copy, "--seed", "3"), "seed 0 -> 3")
     assert _render(copy).returncode == 0  # the same settings resume, and are recorded from now on
     assert json.loads((copy / "dataset_info.json").read_text())["settings"]["seed"] == 0
+
+
+def _scene_files(files):
+    return {path: content for path, content in files.items() if path.parts[0] == "test"}
+
+
+@pytest.fixture(scope="module")
+def extended(seed0, tmp_path_factory):
+    """seed0 with a configuration added, then a second segment per configuration: the files after each run."""
+    out = tmp_path_factory.mktemp("extended") / "set"
+    shutil.copytree(seed0, out)
+    steps = [_files(out)]
+    for args in (["--robots", f"{ROBOT},{OTHER}"], ["--robots", f"{ROBOT},{OTHER}", "--segments", "2"]):
+        proc = _render(out, *args)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        steps.append(_files(out))
+    return out, steps
+
+
+def test_more_configurations_and_segments_add_scenes_and_keep_every_scene_as_it_was(extended):
+    out, steps = extended
+    for before, after in zip(steps, steps[1:]):
+        kept = {path: after.get(path) for path in _scene_files(before)}
+        assert kept == _scene_files(before)
+        assert len(_scene_files(after)) > len(kept)
+    scenes = json.loads((out / "dataset_info.json").read_text())["scenes"]
+    assert scenes == {"0": {"config": OTHER, "segment": 0}, "7": {"config": ROBOT, "segment": 0},
+                      "18": {"config": OTHER, "segment": 1}, "19": {"config": ROBOT, "segment": 1}}
+    assert sorted(p.name for p in split_dir(out).iterdir()) == ["000000", "000007", "000018", "000019"]
+
+
+def test_a_segment_shows_the_same_whichever_scene_id_it_got(extended, copy):
+    """Segment 1 of ROBOT is scene 19 after OTHER came first, scene 18 when it is the only one added."""
+    assert _render(copy, "--segments", "2").returncode == 0
+    assert json.loads((copy / "dataset_info.json").read_text())["scenes"]["18"] == {"config": ROBOT, "segment": 1}
+    out, _ = extended
+    alone, after_other = _files(split_dir(copy) / "000018"), _files(split_dir(out) / "000019")
+    assert alone == after_other and len(alone) > 10
+
+
+def test_a_data_set_from_before_scene_ids_were_recorded_numbers_its_scenes_as_it_was_numbered(copy):
+    _from_before(copy, "scenes")
+    before = _scene_files(_files(copy))
+    assert _render(copy, "--robots", f"{ROBOT},{OTHER}").returncode == 0
+    scenes = json.loads((copy / "dataset_info.json").read_text())["scenes"]
+    assert scenes == {"0": {"config": OTHER, "segment": 0}, "7": {"config": ROBOT, "segment": 0}}
+    after = _files(copy)
+    assert {path: after.get(path) for path in before} == before
+
+
+@pytest.mark.parametrize("keys,scene,words", [
+    (("scenes", "settings"), "000063", ["for segment counts 8, 9,", "another --out"]),
+    (("scenes",), "000008", [f"scene 000008 holds {ROBOT}", "at 1 segments per configuration"]),
+])
+def test_a_data_set_from_before_whose_numbering_cannot_be_told_is_refused_and_left_alone(copy, keys, scene, words):
+    _from_before(copy, *keys)
+    _scene(copy).rename(split_dir(copy) / scene)
+    before = _files(copy)
+    _one_line(_render(copy), *words)
+    assert _files(copy) == before
 
 
 @pytest.mark.parametrize("name,content", [("dataset_info.json", "{trunc"), ("dataset_info.json", "[1, 2]"),

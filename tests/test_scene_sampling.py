@@ -5,10 +5,11 @@ import pytest
 
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
-from syneepose.jobs import make_jobs, parse_shard
+from syneepose.jobs import Content, Selection, make_jobs, parse_shard
 from syneepose.preset import load_preset, parse_preset
 from syneepose.scene.motion import min_jerk, trajectory
 from syneepose.scene.sample import kelvin_to_rgb, look_at, rng_for
+from syneepose.scene.spec import RenderSettings
 from syneepose.templates import fibonacci_sphere, poses
 
 
@@ -56,13 +57,14 @@ def test_fibonacci_templates_cover_the_sphere():
 
 
 def test_scene_ids_are_stable_across_subsets_and_shards(tmp_path):
-    preset = load_preset("mini")
-    full = make_jobs("mini", preset, tmp_path, ["panda+panda_hand", "ur5e+robotiq_2f85"], 0, 2, 4, 64, 48, 2, tmp_path)
-    subset = make_jobs("mini", preset, tmp_path, ["ur5e+robotiq_2f85"], 0, 2, 4, 64, 48, 2, tmp_path)
-    assert {j.scene_id for j in subset} <= {j.scene_id for j in full}
-    shards = [make_jobs("mini", preset, tmp_path, ["panda+panda_hand", "ur5e+robotiq_2f85"], 0, 2, 4, 64, 48, 2,
-                        tmp_path, shard=(i, 3)) for i in range(3)]
-    assert sorted(j.scene_id for s in shards for j in s) == sorted(j.scene_id for j in full)
+    content, render = Content(load_preset("mini"), "mini", seed=0), RenderSettings(64, 48, 2)
+
+    def ids(configs, shard=(0, 1)):
+        return [j.scene_id for j in make_jobs(content, render, Selection(configs, 2, shard), tmp_path, tmp_path).jobs]
+
+    full = ids(("panda+panda_hand", "ur5e+robotiq_2f85"))
+    assert set(ids(("ur5e+robotiq_2f85",))) <= set(full)
+    assert sorted(i for k in range(3) for i in ids(("panda+panda_hand", "ur5e+robotiq_2f85"), (k, 3))) == sorted(full)
     assert parse_shard("1/3") == (1, 3)
     with pytest.raises(UserError):
         parse_shard("3/3")
@@ -88,12 +90,12 @@ def test_self_collision_known_poses(ur5e_checks):
     assert checks.self_collision(folded[None])[0]
 
 
-def _planned_twice(preset, robot, checks, scene_id, seed, frames, width, height):
+def _planned_twice(preset, robot, checks, stream, seed, frames, width, height):
     """The segment plan, asserted to be the same when planned again with the same seed."""
     from syneepose.scene.plan import plan_segment
 
-    spec = plan_segment(preset, robot, checks, scene_id, seed, frames, width, height, 2)
-    again = plan_segment(preset, robot, checks, scene_id, seed, frames, width, height, 2)
+    spec = plan_segment(preset, robot, checks, stream, seed, frames, width, height)
+    again = plan_segment(preset, robot, checks, stream, seed, frames, width, height)
     np.testing.assert_array_equal(spec.q, again.q)
     np.testing.assert_array_equal(spec.T_base_cam, again.T_base_cam)
     if spec.marker is not None:

@@ -14,46 +14,48 @@ from syneepose.blender.exr import linear_to_srgb8
 from syneepose.blender.stereo import IrRig
 from syneepose.robots.catalog import load_catalog
 from syneepose.robots.robot import Robot
-from syneepose.scene.spec import SegmentSpec
-from syneepose.stereo import stereo_depth, to_rgb_camera
+from syneepose.scene.spec import RenderSettings, SegmentSpec
+from syneepose.stereo import load_profile, stereo_depth, to_rgb_camera
 
 MAX_DEPTH = 65535 * 0.1 / 1000.0  # metres: the uint16 depth PNG range at depth_scale 0.1; beyond -> 0,
 # as a real sensor reports out-of-range depth (Cycles writes 1e10 where a ray hits nothing)
 
 
-def _with_sensor_depth(frame: Frame, rig: IrRig, spec: SegmentSpec, workdir: Path) -> Frame:
+def _with_sensor_depth(frame: Frame, rig: IrRig, spec: SegmentSpec, render: RenderSettings, workdir: Path) -> Frame:
     """The frame with the stereo sensor's depth in `depth` and the exact depth kept as `depth_gt`."""
     left, right = rig.render_pair(spec.T_base_cam, workdir)
-    depth_ir = stereo_depth(left, right, spec.sensor, rig.K_ir)
-    sensed = to_rgb_camera(depth_ir, rig.K_ir, spec.sensor.T_rgb_irleft, spec.K, spec.width, spec.height)
+    depth_ir = stereo_depth(left, right, rig.profile, rig.K_ir)
+    sensed = to_rgb_camera(depth_ir, rig.K_ir, rig.profile.T_rgb_irleft, spec.K, render.width, render.height)
     sensed = np.where(sensed < MAX_DEPTH, sensed, 0.0)
-    keep_ir = spec.depth_mode == "both"
+    keep_ir = render.depth == "both"
     return replace(frame, depth=sensed, depth_gt=frame.depth, ir_left=left if keep_ir else None,
                    ir_right=right if keep_ir else None)
 
 
-def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=None, settings: dict | None = None) -> int:
+def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scene_dir: Path, progress=None,
+                   settings: dict | None = None) -> int:
     """Render the frames not yet on disk; returns how many were rendered. `settings`: what produced them
     (jobs.job_settings), recorded in scene_robot.json; frames of other settings are refused."""
+    sensor = load_profile(render.sensor) if render.depth != "exact" else None
     writer = SceneWriter(Path(scene_dir), SceneMeta(
         obj_id=robot.ee.obj_id, arm=robot.arm.name, end_effector=robot.ee.name,
         joint_names=list(robot.arm.joints), T_cam_base=inv_T(spec.T_base_cam),
         marker=spec.marker.to_json() if spec.marker is not None else None,
-        depth_sensor={"mode": spec.depth_mode, "profile": spec.sensor.source} if spec.sensor is not None else None,
+        depth_sensor={"mode": render.depth, "profile": sensor.source} if sensor is not None else None,
         links=[*bscene.arm_links(robot.model, set(robot.ee_links)), robot.ee_root], settings=settings),
         obj_ids=[ee.obj_id for ee in load_catalog().end_effectors.values()])
     todo = [i for i in range(spec.n_frames) if not writer.done(i)]
     if not todo:
         return 0
-    bscene.reset(spec.width, spec.height, spec.samples, spec.denoise, spec.max_bounces, spec.world_color,
-                 spec.world_strength, device=spec.device)
-    bscene.set_camera(spec.K, spec.width, spec.height, spec.T_base_cam)
+    bscene.reset(render.width, render.height, render.samples, render.denoise, render.max_bounces, spec.world_color,
+                 spec.world_strength, device=render.device)
+    bscene.set_camera(spec.K, render.width, render.height, spec.T_base_cam)
     bscene.add_lights(spec.lights)
     bscene.add_planes(spec.planes)
     bscene.add_distractors(spec.distractors)
     objects = bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
     board = bscene.add_board(spec.marker) if spec.marker is not None else None
-    rig = IrRig(spec.sensor, spec.width, spec.height, seed=spec.scene_id) if spec.sensor is not None else None
+    rig = IrRig(sensor, render.width, render.height, seed=spec.stream) if sensor is not None else None
     T_cam_base = inv_T(spec.T_base_cam)
     for i in todo:
         q = spec.q[i]
@@ -69,7 +71,7 @@ def render_segment(spec: SegmentSpec, robot: Robot, scene_dir: Path, progress=No
             K=spec.K, T_cam_ee=T_cam_base @ T_base_link[robot.ee_root], joint_positions=q,
             T_base_ee=T_base_link[robot.ee_root], link_ids=objects.link_ids(out["index"]))
         if rig is not None:
-            frame = _with_sensor_depth(frame, rig, spec, Path(scene_dir))
+            frame = _with_sensor_depth(frame, rig, spec, render, Path(scene_dir))
         writer.write(frame)
         if progress is not None:
             progress(1)

@@ -1,6 +1,6 @@
 """Seeded domain randomisation: a preset (typed ranges, syneepose/preset.py) + a seed -> a SegmentSpec.
 
-Everything here is pure numpy; the same (preset, config, scene_id, seed) gives the same spec.
+Everything here is pure numpy; the same (preset, config, stream, seed) gives the same spec.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from syneepose.preset import Preset
 from syneepose.scene.spec import Distractor, Light, Plane, SegmentSpec, Surface
 
 
-def rng_for(seed: int, config: str, scene_id: int) -> np.random.Generator:
+def rng_for(seed: int, config: str, stream: int) -> np.random.Generator:
     """Independent stream per segment, stable across runs and machines."""
-    key = [seed, scene_id] + [ord(c) for c in config]
+    key = [seed, stream] + [ord(c) for c in config]
     return np.random.default_rng(np.random.SeedSequence(key))
 
 
@@ -131,8 +131,8 @@ def distractors(rng, preset: Preset, avoid: np.ndarray) -> list[Distractor]:
     return out
 
 
-def sample_segment(rng, preset: Preset, robot, config: str, scene_id: int, seed: int, q: np.ndarray,
-                   width: int, height: int, samples: int, images: list[str] | None = None) -> SegmentSpec:
+def sample_segment(rng, preset: Preset, robot, config: str, stream: int, seed: int, q: np.ndarray,
+                   width: int, height: int, images: list[str] | None = None) -> SegmentSpec:
     """Camera, lights and backdrop around a given arm trajectory `q` (see motion.py)."""
     ee_path = robot.T_base_ee(q)[:, :3, 3]
     target = ee_path.mean(0)
@@ -146,10 +146,7 @@ def sample_segment(rng, preset: Preset, robot, config: str, scene_id: int, seed:
     eye[2] = max(eye[2], 0.05)
     world = preset.world
     return SegmentSpec(
-        config=config, scene_id=scene_id, seed=seed, width=width, height=height, K=K,
-        T_base_cam=look_at(eye, target), q=q, samples=samples,
-        denoise=preset.render.denoise,
-        max_bounces=preset.render.max_bounces,
+        config=config, stream=stream, seed=seed, K=K, T_base_cam=look_at(eye, target), q=q,
         world_color=tuple(float(c) for c in rng.uniform(*world.value, 3) ** 2.2),
         world_strength=uniform(rng, world.strength),
         lights=lights(rng, preset, target),

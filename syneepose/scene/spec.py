@@ -7,7 +7,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from syneepose.scene.marker import MarkerBoard
-from syneepose.stereo import SensorProfile
 
 
 @dataclass
@@ -48,27 +47,37 @@ class Distractor:
 
 @dataclass
 class SegmentSpec:
+    """What the segment shows: the camera, the arm's motion, lights, backdrop, objects and board. `K` is
+    for the image size of the RenderSettings it was planned with."""
+
     config: str
-    scene_id: int
+    stream: int  # its random stream (scene/sample.rng_for): fixed by the segment's key, not its scene id
     seed: int
-    width: int
-    height: int
     K: np.ndarray  # (3, 3) OpenCV intrinsics
     T_base_cam: np.ndarray  # (4, 4) OpenCV camera in the robot base, static over the segment
     q: np.ndarray  # (n_frames, n_arm) arm joint positions
-    samples: int = 16
-    denoise: bool = False
-    max_bounces: int = 12
-    device: str = "cpu"  # "gpu": Cycles on the first GPU backend found
     world_color: tuple[float, float, float] = (0.05, 0.05, 0.05)
     world_strength: float = 1.0
     lights: list[Light] = field(default_factory=list)
     planes: list[Plane] = field(default_factory=list)
     distractors: list[Distractor] = field(default_factory=list)
     marker: MarkerBoard | None = None  # a ChArUco board bolted to the end-effector (marker hand-eye segments)
-    depth_mode: str = "exact"  # "stereo" | "both": simulated active-stereo depth (syneepose/stereo.py)
-    sensor: SensorProfile | None = None
 
     @property
     def n_frames(self) -> int:
         return len(self.q)
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How a run renders its segments, beside what each shows (SegmentSpec): the run's choice, the same for
+    every segment and never sampled, so planning returns the spec whole and nothing patches it afterwards."""
+
+    width: int
+    height: int
+    samples: int
+    denoise: bool = False
+    max_bounces: int = 12
+    device: str = "cpu"  # "gpu": Cycles on the first GPU backend found
+    depth: str = "exact"  # "stereo" | "both": simulated active-stereo depth (syneepose/stereo.py)
+    sensor: str = "d435"  # the stereo sensor's profile: a name in scenes/sensors/ or a YAML path

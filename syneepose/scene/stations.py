@@ -35,11 +35,11 @@ def spread_apart(R: np.ndarray, n: int, first: int) -> list[int]:
     return chosen
 
 
-def plan_stations(preset: Preset, robot, checks: MotionChecks, scene_id: int, seed: int, n_frames: int,
-                  width: int, height: int, samples: int, images: list[str] | None = None) -> SegmentSpec:
+def plan_stations(preset: Preset, robot, checks: MotionChecks, stream: int, seed: int, n_frames: int,
+                  width: int, height: int, images: list[str] | None = None) -> SegmentSpec:
     rules = preset.stations
     board, mount = board_from_preset(preset)
-    rng = rng_for(seed, robot.config, scene_id)
+    rng = rng_for(seed, robot.config, stream)
     motion = preset.motion
     lo, hi = np.asarray(robot.arm.limits, float).T
     home = np.asarray(robot.arm.home, float)
@@ -52,8 +52,7 @@ def plan_stations(preset: Preset, robot, checks: MotionChecks, scene_id: int, se
         pool = pool[~checks.self_collision(pool)]
         if len(pool) < n_frames:
             continue
-        spec = sample_segment(rng, preset, robot, robot.config, scene_id, seed, pool, width, height, samples,
-                              images)
+        spec = sample_segment(rng, preset, robot, robot.config, stream, seed, pool, width, height, images)
         T_cam_ee = inv_T(spec.T_base_cam) @ robot.T_base_ee(pool)
         mounts = [board_pose(board, yaw, radius, **mount) for yaw in np.linspace(0, 2 * np.pi, YAW_STEPS, False)]
         counts = [np.sum(facing(T_cam_ee @ T, board) >= cos_tilt) for T in mounts]
