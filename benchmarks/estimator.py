@@ -53,9 +53,9 @@ def main() -> None:
                 timings.append(est.step(f.rgb, f.depth, f.mask_visib, f.K, f.T_base_ee, view).timings)
     mean = {s: float(np.mean([t.get(s, 0.0) for t in timings])) for s in STAGES}
     non_backbone = mean["total"] - mean["backbone"]
-    print(f"{args.backbone}, variant D, refine {args.refine} ({args.silhouette}), {len(timings)} frames of {dataset.root}: "
-          + ", ".join(f"{s} {mean[s]:.1f}" for s in STAGES) + f" ms/frame; everything but the backbone "
-          f"{non_backbone:.1f} ms/frame")
+    print(f"{args.backbone}, variant D, refine {args.refine} ({args.silhouette}), {len(timings)} frames of "
+          f"{dataset.root}: " + ", ".join(f"{s} {mean[s]:.1f}" for s in STAGES)
+          + f" ms/frame; everything but the backbone {non_backbone:.1f} ms/frame")
 
 
 if __name__ == "__main__":

@@ -130,16 +130,17 @@ def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: 
     bar = tqdm(total=len(pairs) * len(views) * draws, unit="trial", desc="targeting")
     for marker_scene, plain_scene in pairs:
         config, scene_id, ids = marker_scene.config, marker_scene.scene_id, marker_scene.im_ids
+        T_cam_base = marker_scene.meta.T_cam_base
         boards, frames = _observations(marker_scene, "depth", None), _observations(plain_scene, depth_dir, noise)
         for n in views:
             for draw in range(draws):
                 chosen = sorted(rng.choice(ids, n, replace=False).tolist())
                 by_board = _online(marker, marker_scene, [boards[i] for i in chosen])
                 trials.append(Trial(marker_name, scene_id, config, n, draw,
-                                    *_error(by_board[-1].T_cam_base, marker_scene.meta.T_cam_base), by_board[-1].extra["views"]))
+                                    *_error(by_board[-1].T_cam_base, T_cam_base), by_board[-1].extra["views"]))
                 by_feepe = _online(estimator, plain_scene, [frames[i] for i in chosen])
                 trials.append(Trial(feepe_name, scene_id, config, n, draw,
-                                    *_error(by_feepe[-1].T_cam_base, marker_scene.meta.T_cam_base),
+                                    *_error(by_feepe[-1].T_cam_base, T_cam_base),
                                     sum(r.T_cam_ee is not None for r in by_feepe)))
                 bar.update()
     bar.close()

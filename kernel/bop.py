@@ -18,6 +18,7 @@ from kernel.transforms import make_T
 
 GT_ID = 0  # one object (the end-effector) per frame
 DEPTH_SCALE = 0.1  # mm per depth PNG unit
+MAX_DEPTH = 65535 * DEPTH_SCALE / 1000.0  # metres: the uint16 depth PNG's range at DEPTH_SCALE
 MIN_VISIB_FRACT = 0.1  # bop_toolkit's threshold for a test target (enumerate_test_targets) and COCO `ignore`
 # scene_robot last: a frame's sidecar record exists only once its BOP records do.
 _JSONS = ("scene_camera", "scene_gt", "scene_gt_info", "scene_robot")

@@ -18,8 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from kernel import bop
+from kernel.dataset import MODELS, MODELS_EVAL
 from kernel.errors import UserError
 from kernel.files import write_json
+from kernel.template_set import INDEX
 from kernel.transforms import inv_T
 from syneepose import __version__, paths, scene_ids
 from syneepose.preset import Preset, load_preset
@@ -204,7 +206,7 @@ class TemplateJob:
 
 def templates_done(job: TemplateJob) -> int:
     try:
-        return len(json.loads((job.folder / "templates.json").read_text()))
+        return len(json.loads((job.folder / INDEX).read_text()))
     except (OSError, ValueError):
         return 0
 
@@ -244,7 +246,7 @@ def write_dataset_info(out: Path, plan: Plan, assets: Path) -> None:
         info["sensor"] = load_profile(render.sensor).source
     write_json(out / "dataset_info.json", info)
     # models_eval/ (BOP's resampled evaluation models) is optional until the assets build makes it.
-    for name, source in (("models", paths.models_dir(assets)), ("models_eval", paths.models_eval_dir(assets))):
+    for name, source in ((MODELS, paths.models_dir(assets)), (MODELS_EVAL, paths.models_eval_dir(assets))):
         if not (out / name).is_dir() and (name == "models" or source.is_dir()):
             staging = out / f".{name}.tmp{os.getpid()}"
             try:

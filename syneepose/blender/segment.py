@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kernel.bop import Frame, SceneMeta, SceneWriter
+from kernel.bop import MAX_DEPTH, Frame, SceneMeta, SceneWriter
 from kernel.transforms import inv_T
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import linear_to_srgb8
@@ -17,8 +17,6 @@ from syneepose.robots.robot import Robot
 from syneepose.scene.spec import RenderSettings, SegmentSpec
 from syneepose.stereo import load_profile, stereo_depth, to_rgb_camera
 
-MAX_DEPTH = 65535 * 0.1 / 1000.0  # metres: the uint16 depth PNG range at depth_scale 0.1; beyond -> 0,
-# as a real sensor reports out-of-range depth (Cycles writes 1e10 where a ray hits nothing)
 
 
 def _with_sensor_depth(frame: Frame, rig: IrRig, spec: SegmentSpec, render: RenderSettings, workdir: Path) -> Frame:
@@ -26,7 +24,7 @@ def _with_sensor_depth(frame: Frame, rig: IrRig, spec: SegmentSpec, render: Rend
     left, right = rig.render_pair(spec.T_base_cam, workdir)
     depth_ir = stereo_depth(left, right, rig.profile, rig.K_ir)
     sensed = to_rgb_camera(depth_ir, rig.K_ir, rig.profile.T_rgb_irleft, spec.K, render.width, render.height)
-    sensed = np.where(sensed < MAX_DEPTH, sensed, 0.0)
+    sensed = np.where(sensed < MAX_DEPTH, sensed, 0.0)  # beyond the PNG's range: 0, as a sensor reports it
     keep_ir = render.depth == "both"
     return replace(frame, depth=sensed, depth_gt=frame.depth, ir_left=left if keep_ir else None,
                    ir_right=right if keep_ir else None)
@@ -64,7 +62,7 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scen
         if board is not None:
             board.matrix_world = (T_base_link[robot.ee_root] @ spec.marker.T_ee_board).T.tolist()
         out = bscene.render(Path(scene_dir))
-        depth = np.where(out["depth"] < MAX_DEPTH, out["depth"], 0.0)
+        depth = np.where(out["depth"] < MAX_DEPTH, out["depth"], 0.0)  # Cycles writes 1e10 where a ray hits nothing
         frame = Frame(
             im_id=i, rgb=linear_to_srgb8(out["rgb_linear"]), depth=depth,
             mask=out["ee_index"] == bscene.PASS_EE, mask_visib=out["index"] == bscene.PASS_EE,
