@@ -19,6 +19,7 @@ from eval.bop_results import read_results
 from eval.metrics import add, adds, auc
 from eval.model_points import MAX_QUERY, load_eval_model
 from kernel.bop import read_frame, read_scene
+from kernel.dataset import Dataset
 
 
 def main() -> None:
@@ -32,7 +33,7 @@ def main() -> None:
     names = {}
     keys = defaultdict(list)  # obj_id -> (scene_id, im_id) per frame, the evaluator's draw keys
     for scene_id in summary["dataset"]["scenes"]:
-        scene = dataset / summary["dataset"]["split"] / f"{scene_id:06d}"
+        scene = Dataset(dataset).scene_dir(scene_id)
         meta, im_ids = read_scene(scene)
         names[meta.obj_id] = meta.end_effector
         for im_id in im_ids:

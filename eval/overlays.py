@@ -22,7 +22,7 @@ import trimesh
 
 from eval.bop_results import read_results
 from eval.records import FrameErrors, read_errors
-from kernel.bop import read_frame, split_name
+from kernel.bop import read_frame
 from kernel.cli import output_dir, run_command
 from kernel.dataset import Dataset
 from kernel.errors import UserError
@@ -129,14 +129,13 @@ class ResultFolder:
     """What the overlays need from an `eval.run --out` folder, keyed by (scene id, frame id)."""
     path: Path
     dataset: Path
-    split: str
     estimates: dict[tuple[int, int], np.ndarray]
     errors: dict[tuple[int, int], FrameErrors]
 
     def frame_overlay(self, scene_id: int, im_id: int) -> np.ndarray:
         """The overlay of one frame, a zoom on the ground truth beside it and a caption line under both."""
         row = self.errors[scene_id, im_id]
-        frame = read_frame(self.dataset / self.split / f"{scene_id:06d}", im_id)
+        frame = read_frame(Dataset(self.dataset).scene_dir(scene_id), im_id)
         mesh = load_mesh(Dataset(self.dataset).model_path(row.obj_id))
         T_est = self.estimates.get((scene_id, im_id))
         image = side_by_side([draw_pose(frame.rgb, frame.mask, frame.K, mesh, T_est),
@@ -163,7 +162,7 @@ def open_results(folder: Path, dataset: Path | None = None) -> ResultFolder:
                         "pass --dataset DIR where the data set is now")
     estimates = {(r.scene_id, r.im_id): r.T_cam_ee for r in read_results(folder / "results.csv").values()}
     errors = {(r.scene_id, r.im_id): r for r in read_errors(folder / "errors.csv")}
-    return ResultFolder(folder, root, split_name(root), estimates, errors)
+    return ResultFolder(folder, root, estimates, errors)
 
 
 def write_gif(path: Path, images: list[np.ndarray], fps: float = 4.0) -> None:

@@ -111,7 +111,12 @@ class Dataset:
             raise UserError(f"{path}: missing; the data set needs its models/ folder")
         return sorted(int(k) for k in read_json(path, "copy the models again (python -m syneepose render)"))
 
+    def scene_dir(self, scene_id: int) -> Path:
+        """Where scene `scene_id` is (or will be) written."""
+        return self.split_dir / f"{scene_id:06d}"
+
     def scene_dirs(self) -> dict[int, Path]:
+        """The scene folders present, by id."""
         return scene_dirs(self.split_dir)
 
     def scene(self, scene_id: int) -> Scene:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from kernel import bop
-from kernel.dataset import MODELS, MODELS_EVAL
+from kernel.dataset import MODELS, MODELS_EVAL, Dataset
 from kernel.errors import UserError
 from kernel.files import write_json
 from kernel.template_set import INDEX
@@ -75,7 +75,7 @@ class Job:
     @property
     def scene_dir(self) -> Path:
         """In the split that dataset_info.json (written before any job runs) names, not this process's SPLIT."""
-        return bop.split_dir(Path(self.out)) / f"{self.scene_id:06d}"
+        return Dataset(Path(self.out)).scene_dir(self.scene_id)
 
 
 @dataclass(frozen=True)
