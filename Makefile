@@ -68,6 +68,7 @@ test: assets
 bench: dataset
 	$(PY) benchmarks/assets_build.py
 	$(PY) benchmarks/render.py
+	$(PY) benchmarks/templates.py
 	$(PY) benchmarks/estimator.py --dataset $(DATA)
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette --silhouette robot

@@ -1,6 +1,7 @@
 """A FEEPE template set on disk: one folder per end-effector, `<ee>_<views>x<inplane>_<res>px/`, holding
 `rgb/`, `depth/`, `mask/` (`<id:06d>.png`, depth in `depth_scale` mm units, 0 off the object) and
-`templates.json` ({id: view, inplane, cam_K, T_cam_model (metres), depth_scale, obj_id, samples}).
+`templates.json` ({id: view, inplane, cam_K, T_cam_model (metres), depth_scale, obj_id, samples, inplane_by:
+rotated | rendered}).
 The generator writes sets (`python -m syneepose templates`); the estimator only reads them."""
 
 from __future__ import annotations
@@ -62,13 +63,20 @@ def read_index(folder: Path) -> dict:
     return read_json(path, "delete the template set folder and render it again")
 
 
-def check_samples(folder: Path, samples: int) -> None:
-    """A set is rendered with one sample count: a rerun that asks for another would mix two noise levels."""
+def check_recipe(folder: Path, samples: int, inplane: str, complete: bool) -> None:
+    """A set is made one way: one sample count and one way to make in-plane rotations (`inplane_by`, "rendered"
+    for sets from before it was recorded); a rerun that asks for another would mix two kinds of template. A
+    complete set made the other way is used as it is (rendered rotations are the exact reference)."""
     if not (Path(folder) / INDEX).is_file():
         return
-    other = sorted({r["samples"] for r in read_index(folder).values() if r.get("samples", samples) != samples})
+    records = read_index(folder).values()
+    other = sorted({r["samples"] for r in records if r.get("samples", samples) != samples})
     if other:
         raise UserError(f"{folder} was rendered with --samples {other[0]}, not {samples}; rerun with --samples "
+                        f"{other[0]} to resume, or delete the folder to render it again")
+    other = sorted({r.get("inplane_by", "rendered") for r in records} - {inplane})
+    if other and not complete:
+        raise UserError(f"{folder} holds in-plane rotations {other[0]}, not {inplane}; rerun with --inplane-by "
                         f"{other[0]} to resume, or delete the folder to render it again")
 
 
@@ -90,8 +98,8 @@ class TemplateSetWriter:
     """Adds templates to a set, resumable: images first, then the index, so the index names only whole
     templates; `done(id)` says which a killed run finished."""
 
-    def __init__(self, folder: Path, obj_id: int, samples: int):
-        self.folder, self.obj_id, self.samples = Path(folder), obj_id, samples
+    def __init__(self, folder: Path, obj_id: int, samples: int, inplane_by: str):
+        self.folder, self.obj_id, self.samples, self.inplane_by = Path(folder), obj_id, samples, inplane_by
         self.index = read_index(self.folder) if (self.folder / INDEX).is_file() else {}
         for sub in ("rgb", "depth", "mask"):
             (self.folder / sub).mkdir(parents=True, exist_ok=True)
@@ -106,5 +114,6 @@ class TemplateSetWriter:
         write_png(self.folder / "mask" / name, template.mask.astype(np.uint8) * 255)
         self.index[str(template.id)] = {"view": template.view, "inplane": template.inplane,
                                         "cam_K": template.K.ravel().tolist(), "T_cam_model": template.T_cam_model.tolist(),
-                                        "depth_scale": DEPTH_SCALE, "obj_id": self.obj_id, "samples": self.samples}
+                                        "depth_scale": DEPTH_SCALE, "obj_id": self.obj_id, "samples": self.samples,
+                                        "inplane_by": self.inplane_by}
         write_atomic(self.folder / INDEX, json.dumps(self.index, indent=2, sort_keys=True).encode())

@@ -9,6 +9,7 @@ from pathlib import Path
 from kernel.cli import run_command
 from kernel.errors import UserError
 from syneepose.preset import load_preset, templates_with
+from syneepose.templates import INPLANE_BY
 
 MAX_WORKERS = 64
 
@@ -128,7 +129,7 @@ def _writable(out: Path) -> None:
 def _templates(args) -> None:
     from tqdm import tqdm
 
-    from kernel.template_set import check_samples
+    from kernel.template_set import check_recipe
     from syneepose import jobs as J
     from syneepose import paths
     from syneepose.robots.build import build_assets
@@ -144,10 +145,10 @@ def _templates(args) -> None:
     assets = paths.assets_dir()
     build_assets(assets, [f"panda+{n}" for n in names], log=lambda *_: None)
     jobs = [J.TemplateJob(n, str(out), settings.views, settings.inplane, settings.resolution, settings.samples,
-                          str(assets), args.device) for n in names]
-    for job in jobs:
-        check_samples(job.folder, job.samples)
+                          str(assets), args.device, args.inplane_by) for n in names]
     done_before = {j: J.templates_done(j) for j in jobs}
+    for job in jobs:
+        check_recipe(job.folder, job.samples, job.inplane_by, done_before[job] >= job.frames)
     bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="template",
                desc="templates")
 
@@ -210,6 +211,8 @@ def main(argv=None) -> int:
     t.add_argument("--resolution", type=int, help="square image size in pixels")
     t.add_argument("--samples", type=int, help="Cycles samples per pixel")
     t.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
+    t.add_argument("--inplane-by", choices=INPLANE_BY, default="rotated",
+                   help="in-plane rotations rolled from each view's one render (default), or each rendered")
     t.add_argument("--executor", choices=["local", "ray"], default="local")
     t.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     t.add_argument("--workers", type=int, default=1, help="local worker processes")

@@ -192,6 +192,7 @@ class TemplateJob:
     samples: int
     assets: str
     device: str = "cpu"
+    inplane_by: str = "rotated"  # templates.INPLANE_BY
 
     @property
     def folder(self) -> Path:
@@ -217,7 +218,7 @@ def run_template_job(job: TemplateJob) -> int:
     ee = load_catalog().end_effector(job.ee)
     with _quiet_stdout():
         return render_templates(ee, paths.part_urdf(job.ee, Path(job.assets)), job.folder, job.views, job.inplane,
-                                job.resolution, job.samples, job.device)
+                                job.resolution, job.samples, job.device, inplane=job.inplane_by)
 
 
 def write_dataset_info(out: Path, plan: Plan, assets: Path) -> None:

@@ -1,11 +1,13 @@
-"""FEEPE templates: views on a Fibonacci sphere x in-plane rotations, object centred (pure numpy).
+"""FEEPE templates: views on a Fibonacci sphere x in-plane rotations, object centred (numpy and cv2, no bpy).
 
-Rendering lives in `syneepose/blender/templates.py`; this module decides poses and intrinsics. The files of
-a set (and their reader) are `kernel/template_set.py`.
+Rendering lives in `syneepose/blender/templates.py`; this module decides poses and intrinsics and derives the
+in-plane rotations of a view from its one render. The files of a set (and their reader) are
+`kernel/template_set.py`.
 """
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from kernel.transforms import inv_T, make_T
@@ -13,6 +15,8 @@ from syneepose.scene.sample import look_at
 
 FOV_DEG = 30.0
 FILL = 0.9  # the bounding sphere spans this fraction of the image width
+DEPTH_EDGE_M = 0.005  # roll_template: neighbouring depths further apart than this meet at an edge
+INPLANE_BY = ("rotated", "rendered")  # in-plane rotations: rolled from the view's render (roll_template), or rendered
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
@@ -42,3 +46,30 @@ def poses(n_views: int, n_inplane: int, center: np.ndarray, radius: float) -> li
             roll = make_T(np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]]))
             out.append((v, k, inv_T(T_model_cam @ roll)))
     return out
+
+
+def _roll(image: np.ndarray, angle: float, interpolation: int) -> np.ndarray:
+    """`image` as the camera of `poses` rolled by `angle` (radians) sees it: with the principal point at the
+    image centre, rolling the camera about its axis rotates the image about the centre."""
+    c = (image.shape[1] - 1) / 2, (image.shape[0] - 1) / 2
+    cos, sin = np.cos(angle), np.sin(angle)
+    M = np.array([[cos, -sin, c[0] - cos * c[0] + sin * c[1]], [sin, cos, c[1] - sin * c[0] - cos * c[1]]])
+    return cv2.warpAffine(image, M, (image.shape[1], image.shape[0]), flags=interpolation | cv2.WARP_INVERSE_MAP,
+                          borderValue=0)
+
+
+def roll_template(rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray,
+                  angle: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The in-plane template at `angle` from its view's unrolled render. Depth values do not change under a
+    roll, and nothing leaves the frame: the bounding sphere projects to a centred disc (FILL); corners are
+    background (0). RGB is interpolated linearly, the mask is the linearly interpolated coverage >= 0.5, and
+    depth the mean of the valid depths around each new pixel (linear weights), or the nearest one where the
+    two differ by more than DEPTH_EDGE_M (a depth edge inside the object, which a mean would invent)."""
+    rgb = _roll(rgb, angle, cv2.INTER_LINEAR)
+    valid = (depth > 0).astype(np.float32)
+    weight = _roll(valid, angle, cv2.INTER_LINEAR)
+    mean = _roll((depth * valid).astype(np.float32), angle, cv2.INTER_LINEAR) / np.maximum(weight, 1e-6)
+    nearest = _roll(depth.astype(np.float32), angle, cv2.INTER_NEAREST)
+    inside = (_roll(np.asarray(mask, np.float32), angle, cv2.INTER_LINEAR) >= 0.5) & (weight > 0)
+    depth = np.where((np.abs(mean - nearest) <= DEPTH_EDGE_M) | (nearest == 0), mean, nearest)
+    return rgb, np.where(inside, depth, 0.0), inside

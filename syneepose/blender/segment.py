@@ -18,7 +18,6 @@ from syneepose.scene.spec import RenderSettings, SegmentSpec
 from syneepose.stereo import load_profile, stereo_depth, to_rgb_camera
 
 
-
 def _with_sensor_depth(frame: Frame, rig: IrRig, spec: SegmentSpec, render: RenderSettings, workdir: Path) -> Frame:
     """The frame with the stereo sensor's depth in `depth` and the exact depth kept as `depth_gt`."""
     left, right = rig.render_pair(spec.T_base_cam, workdir)

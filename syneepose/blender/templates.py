@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from itertools import groupby
 from pathlib import Path
 
 import numpy as np
@@ -16,17 +17,19 @@ from syneepose.robots.model import read_urdf
 
 
 def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane: int, resolution: int,
-                     samples: int, device: str = "cpu", progress=None) -> int:
-    """Render the templates not yet on disk; returns how many were rendered."""
-    writer = TemplateSetWriter(folder, ee.obj_id, samples)
+                     samples: int, device: str = "cpu", progress=None, inplane: str = "rotated") -> int:
+    """Render the templates not yet on disk; returns how many were written. `inplane="rotated"` renders each
+    view once and rolls the images for its in-plane rotations (T.roll_template); "rendered" renders every
+    template, the reference the rotation is tested against."""
+    writer = TemplateSetWriter(folder, ee.obj_id, samples, inplane)
     model = read_urdf(part_urdf)
     canonical = dict(ee.canonical)
     mesh = rigid_mesh(model, Path(part_urdf).parent, canonical)
     center = mesh.bounds.mean(0)
     radius = float(np.linalg.norm(mesh.vertices - center, axis=1).max())
     K = T.intrinsics(resolution)
-    todo = [(i, v, k, pose) for i, (v, k, pose) in enumerate(T.poses(n_views, n_inplane, center, radius))
-            if not writer.done(i)]
+    planned = list(enumerate(T.poses(n_views, n_inplane, center, radius)))
+    todo = [(i, v, k, pose) for i, (v, k, pose) in planned if not writer.done(i)]
     if not todo:
         return 0
     bscene.reset(resolution, resolution, samples, denoise=samples >= 4, world_color=(1.0, 1.0, 1.0),
@@ -34,12 +37,24 @@ def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane:
     bscene.set_camera(K, resolution, resolution, np.eye(4))
     objects = bscene.RobotObjects(model, Path(part_urdf).parent, {lk.name for lk in model.links})
     objects.pose(Kinematics(model).link_poses(canonical))
-    for i, view, inplane, T_cam_model in todo:
-        bscene.move_camera(np.linalg.inv(T_cam_model))
-        out = bscene.render(Path(folder))
-        mask = out["ee_index"] == bscene.PASS_EE
-        writer.write(Template(i, view, inplane, K, T_cam_model, linear_to_srgb8(out["rgb_linear"]),
-                              np.where(mask, out["ee_depth"], 0.0), mask))
-        if progress is not None:
-            progress(1)
+    unrolled = {v: pose for _, (v, k, pose) in planned if k == 0}
+    for view, templates in groupby(todo, key=lambda t: t[1]):
+        if inplane == "rotated":
+            view_images = _render(unrolled[view], folder)
+        for i, _, k, T_cam_model in templates:
+            if inplane == "rotated":
+                rgb, depth, mask = T.roll_template(*view_images, 2 * np.pi * k / n_inplane)
+            else:
+                rgb, depth, mask = _render(T_cam_model, folder)
+            writer.write(Template(i, view, k, K, T_cam_model, rgb, depth, mask))
+            if progress is not None:
+                progress(1)
     return len(todo)
+
+
+def _render(T_cam_model: np.ndarray, folder: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(sRGB uint8, depth in metres with 0 off the object, mask) seen from one camera pose."""
+    bscene.move_camera(np.linalg.inv(T_cam_model))
+    out = bscene.render(Path(folder))
+    mask = out["ee_index"] == bscene.PASS_EE
+    return linear_to_srgb8(out["rgb_linear"]), np.where(mask, out["ee_depth"], 0.0), mask
