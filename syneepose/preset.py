@@ -71,7 +71,7 @@ class Distractors(Section):
 
 
 class Templates(Section):
-    views: int = Field(20, ge=1, le=10000)
+    views: int = Field(80, ge=1, le=10000)  # x inplane 12: the paper's 960 templates
     inplane: int = Field(12, ge=1, le=360)
     resolution: int = Field(128, ge=8, le=4096)
     samples: int = Field(8, ge=1, le=65536)

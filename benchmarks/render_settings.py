@@ -1,0 +1,102 @@
+"""Cycles settings for `mini` chosen by measurement: seconds per frame and RGB PSNR against a 256-spp
+reference (no denoiser, 12 bounces) for today's settings and alternatives, on the same planned frames.
+
+Each variant changes one thing against today's (16 spp, OIDN denoiser, 8 bounces, light tree, no adaptive
+sampling); times are the render call per frame (Cycles and its EXR; the scene build excluded), the variants
+interleaved frame by frame so a noisy machine slows them alike. Prints figures, asserts nothing:
+`.venv/bin/python benchmarks/render_settings.py [--configs A+B,...] [--frames N]`.
+"""
+
+import argparse
+import time
+
+import bpy
+import numpy as np
+
+from syneepose import paths
+from syneepose.blender import scene as bscene
+from syneepose.blender.exr import linear_to_srgb8
+from syneepose.preset import load_preset
+from syneepose.robots.ee_models import load_ee_mesh
+from syneepose.robots.robot import load_robot
+from syneepose.scene.motion import MotionChecks
+from syneepose.scene.plan import plan_segment
+
+REFERENCE = {"samples": 256, "use_denoising": False, "max_bounces": 12}
+
+
+def _ee_layer_undenoised(scene) -> None:
+    scene.view_layers[bscene.EE_ONLY].cycles.use_denoising = False
+
+
+VARIANTS = {
+    "today (16 spp, OIDN, 8 bounces)": {},
+    "EE-only layer not denoised": _ee_layer_undenoised,
+    "OIDN prefilter FAST": {"denoising_prefilter": "FAST"},
+    "OIDN quality BALANCED": {"denoising_quality": "BALANCED"},
+    "8 spp": {"samples": 8},
+    "adaptive 0.05, 16 spp max": {"use_adaptive_sampling": True, "adaptive_threshold": 0.05},
+    "4 bounces (diffuse/glossy 2)": {"max_bounces": 4, "diffuse_bounces": 2, "glossy_bounces": 2},
+    "light tree off": {"use_light_tree": False},
+}
+
+
+def build(config: str, frame_count: int, seed: int):
+    preset = load_preset("mini")
+    robot = load_robot(config)
+    mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name))
+    spec = plan_segment(preset, robot, MotionChecks(robot, mesh), seed, 0, frame_count, *preset.resolution)
+    return robot, spec, preset
+
+
+def render_frame(robot, spec, preset, change, frame: int) -> tuple[np.ndarray, float]:
+    """A fresh scene with `change` applied, one frame: (sRGB as float, seconds in Blender's render call)."""
+    bscene.reset(*preset.resolution, preset.samples, preset.render.denoise, preset.render.max_bounces,
+                 spec.world_color, spec.world_strength)
+    scene = bpy.context.scene
+    if callable(change):
+        change(scene)
+    else:
+        for key, value in change.items():
+            setattr(scene.cycles, key, value)
+    bscene.set_camera(spec.K, *preset.resolution, spec.T_base_cam)
+    bscene.add_lights(spec.lights)
+    bscene.add_planes(spec.planes)
+    bscene.add_distractors(spec.distractors)
+    objects = bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
+    objects.pose(robot.T_base_link(spec.q[frame]))
+    start = time.perf_counter()
+    out = bscene.render()
+    return linear_to_srgb8(out["rgb_linear"]).astype(float), time.perf_counter() - start
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    return float(10 * np.log10(255.0**2 / max(np.mean((a - b) ** 2), 1e-12)))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--configs", default="ur5e+robotiq_2f85,panda+panda_hand,ur10e+shadow_hand")
+    parser.add_argument("--frames", type=int, default=2, help="frames per configuration, spread over a segment")
+    args = parser.parse_args()
+    n = load_preset("mini").frames
+    frames = sorted({round(k * (n - 1) / max(args.frames - 1, 1)) for k in range(args.frames)})
+    results = {name: ([], []) for name in VARIANTS}
+    for seed, config in enumerate(args.configs.split(",")):
+        robot, spec, preset = build(config, n, seed)
+        for frame in frames:
+            reference, _ = render_frame(robot, spec, preset, REFERENCE, frame)
+            for name, change in VARIANTS.items():
+                image, seconds = render_frame(robot, spec, preset, change, frame)
+                results[name][0].append(psnr(image, reference))
+                results[name][1].append(seconds)
+    base = np.mean(results[next(iter(VARIANTS))][1])
+    print(f"mini, 320x240, {len(frames)} frames x {len(args.configs.split(','))} configurations; "
+          "PSNR against 256 spp / no denoiser / 12 bounces")
+    for name, (psnrs, seconds) in results.items():
+        print(f"  {name:34s} {np.mean(seconds):5.2f} s/frame (x{np.mean(seconds) / base:.2f})  "
+              f"PSNR {np.mean(psnrs):5.2f} dB (min {np.min(psnrs):5.2f})")
+
+
+if __name__ == "__main__":
+    main()
