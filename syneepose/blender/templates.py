@@ -38,17 +38,19 @@ def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane:
     objects = bscene.RobotObjects(model, Path(part_urdf).parent, {lk.name for lk in model.links})
     objects.pose(Kinematics(model).link_poses(canonical))
     unrolled = {v: pose for _, (v, k, pose) in planned if k == 0}
-    for view, templates in groupby(todo, key=lambda t: t[1]):
+    for view, planned_view in groupby(todo, key=lambda t: t[1]):
         if inplane == "rotated":
             view_images = _render(unrolled[view], folder)
-        for i, _, k, T_cam_model in templates:
+        templates = []
+        for i, _, k, T_cam_model in planned_view:
             if inplane == "rotated":
                 rgb, depth, mask = T.roll_template(*view_images, 2 * np.pi * k / n_inplane)
             else:
                 rgb, depth, mask = _render(T_cam_model, folder)
-            writer.write(Template(i, view, k, K, T_cam_model, rgb, depth, mask))
-            if progress is not None:
-                progress(1)
+            templates.append(Template(i, view, k, K, T_cam_model, rgb, depth, mask))
+        writer.write(templates)
+        if progress is not None:
+            progress(len(templates))
     return len(todo)
 
 
