@@ -9,7 +9,6 @@ import tempfile
 import time
 from pathlib import Path
 
-
 from syneepose import paths
 from syneepose.blender import scene as bscene
 from syneepose.blender.segment import render_segment

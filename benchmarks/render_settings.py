@@ -1,9 +1,10 @@
 """Cycles settings for `mini` chosen by measurement: seconds per frame and RGB PSNR against a 256-spp
 reference (no denoiser, 12 bounces) for today's settings and alternatives, on the same planned frames.
 
-Each variant changes one thing against today's (16 spp, OIDN denoiser, 8 bounces, light tree, no adaptive
-sampling); times are the render call per frame (Cycles and its EXR; the scene build excluded), the variants
-interleaved frame by frame so a noisy machine slows them alike. Prints figures, asserts nothing:
+Each variant changes one thing, or a few, against today's (16 spp, OIDN denoiser, 8 bounces, light tree,
+no adaptive sampling; the EE-only layer undenoised and emission-shaded); times are the render call per
+frame (Cycles and its EXR; the scene build excluded), the variants interleaved frame by frame so a noisy
+machine slows them alike. Prints figures, asserts nothing:
 `.venv/bin/python benchmarks/render_settings.py [--configs A+B,...] [--frames N]`.
 """
 
@@ -25,19 +26,18 @@ from syneepose.scene.plan import plan_segment
 REFERENCE = {"samples": 256, "use_denoising": False, "max_bounces": 12}
 
 
-def _ee_layer_undenoised(scene) -> None:
-    scene.view_layers[bscene.EE_ONLY].cycles.use_denoising = False
-
-
+LIGHT_TREE_OFF = {"use_light_tree": False}
+BOUNCES_4 = {"max_bounces": 4, "diffuse_bounces": 2, "glossy_bounces": 2}
 VARIANTS = {
-    "today (16 spp, OIDN, 8 bounces)": {},
-    "EE-only layer not denoised": _ee_layer_undenoised,
-    "OIDN prefilter FAST": {"denoising_prefilter": "FAST"},
-    "OIDN quality BALANCED": {"denoising_quality": "BALANCED"},
-    "8 spp": {"samples": 8},
-    "adaptive 0.05, 16 spp max": {"use_adaptive_sampling": True, "adaptive_threshold": 0.05},
-    "4 bounces (diffuse/glossy 2)": {"max_bounces": 4, "diffuse_bounces": 2, "glossy_bounces": 2},
-    "light tree off": {"use_light_tree": False},
+    "today (16 spp, OIDN, 8 bounces)": [],
+    "OIDN prefilter FAST": [{"denoising_prefilter": "FAST"}],
+    "OIDN quality BALANCED": [{"denoising_quality": "BALANCED"}],
+    "8 spp": [{"samples": 8}],
+    "adaptive 0.05, 16 spp max": [{"use_adaptive_sampling": True, "adaptive_threshold": 0.05}],
+    "4 bounces (diffuse/glossy 2)": [BOUNCES_4],
+    "light tree off": [LIGHT_TREE_OFF],
+    "light tree off, 4 bounces": [LIGHT_TREE_OFF, BOUNCES_4],
+    "light tree off, 4 bounces, 12 spp": [LIGHT_TREE_OFF, BOUNCES_4, {"samples": 12}],
 }
 
 
@@ -49,16 +49,17 @@ def build(config: str, frame_count: int, seed: int):
     return robot, spec, preset
 
 
-def render_frame(robot, spec, preset, change, frame: int) -> tuple[np.ndarray, float]:
-    """A fresh scene with `change` applied, one frame: (sRGB as float, seconds in Blender's render call)."""
+def render_frame(robot, spec, preset, changes: list, frame: int) -> tuple[np.ndarray, float]:
+    """A fresh scene with `changes` applied, one frame: (sRGB as float, seconds in Blender's render call)."""
     bscene.reset(*preset.resolution, preset.samples, preset.render.denoise, preset.render.max_bounces,
                  spec.world_color, spec.world_strength)
     scene = bpy.context.scene
-    if callable(change):
-        change(scene)
-    else:
-        for key, value in change.items():
-            setattr(scene.cycles, key, value)
+    for part in changes:
+        if callable(part):
+            part(scene)
+        else:
+            for key, value in part.items():
+                setattr(scene.cycles, key, value)
     bscene.set_camera(spec.K, *preset.resolution, spec.T_base_cam)
     bscene.add_lights(spec.lights)
     bscene.add_planes(spec.planes)
@@ -85,7 +86,7 @@ def main() -> None:
     for seed, config in enumerate(args.configs.split(",")):
         robot, spec, preset = build(config, n, seed)
         for frame in frames:
-            reference, _ = render_frame(robot, spec, preset, REFERENCE, frame)
+            reference, _ = render_frame(robot, spec, preset, [REFERENCE], frame)
             for name, change in VARIANTS.items():
                 image, seconds = render_frame(robot, spec, preset, change, frame)
                 results[name][0].append(psnr(image, reference))
