@@ -23,8 +23,7 @@ assets: setup
 DATA ?= data/mini
 
 dataset: assets
-	$(PY) -m syneepose render --preset mini --out $(DATA)
-	$(PY) -m syneepose templates --preset mini --out $(DATA)
+	$(PY) -m syneepose dataset --preset mini --out $(DATA)
 
 # The paper's tables on $(DATA): the ablation variants, depth alignment, and the K_r / K_f sweeps.
 # A failing run fails the target (`|| exit 1`: a shell loop alone reports only its last command).

@@ -1,10 +1,12 @@
-"""Command line: `python -m syneepose assets | render | templates | show` (see `--help` of each)."""
+"""Command line: `python -m syneepose assets | render | templates | dataset | show` (see `--help` of each)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from kernel.cli import run_command
 from kernel.errors import UserError
@@ -46,9 +48,37 @@ def _check_run(args) -> None:
         raise UserError(f"--workers {args.workers}: must lie in 1..{MAX_WORKERS}")
 
 
-def _render(args) -> None:
-    from tqdm import tqdm
+@dataclass
+class Phase:
+    """One kind of job of a run, planned and checked, not yet run: its jobs, what each had on disk before,
+    what to do after (also after a failure), and the estimated seconds of one unit (ETA of `dataset`)."""
 
+    name: str
+    unit: str
+    fn: Callable
+    jobs: list
+    done_before: dict
+    unit_seconds: float
+    finish: Callable[[], None]  # also after a failure
+    summary: str  # printed after success
+
+    @property
+    def total(self) -> int:
+        return sum(j.frames for j in self.jobs)
+
+    @property
+    def todo(self) -> list:
+        return [j for j in self.jobs if self.done_before[j] < j.frames]
+
+
+def _render_seconds(pixels: int, samples: int) -> float:
+    """Estimated seconds of one Cycles render on 2 cores: a fixed part (scene sync, EXR, PNG writes) and one
+    per pixel-sample, fitted to `mini` frames (320x240, 16 spp: 2.3 s) and template views (128 px, 8 spp,
+    with their 12 rolled templates written: 0.78 s), 2026-11-25. Only the ratios matter: they share one ETA."""
+    return 0.6 + 1.4e-6 * pixels * samples
+
+
+def _plan_render(args) -> Phase:
     from syneepose import jobs as J
     from syneepose import paths, resume
     from syneepose.robots.build import build_assets
@@ -84,19 +114,77 @@ def _render(args) -> None:
     resume.remove_leftovers(out, jobs)
     resume.clear_scenes(stale)
     J.write_dataset_info(out, plan, assets)
-    done_before = {j: J.frames_done(j) for j in jobs}
-    todo = [j for j in jobs if done_before[j] < j.frames]
-    bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="frame", desc="render")
 
-    def report(job):
-        bar.update(job.frames - done_before[job])
-
-    try:
-        _execute(args, J.run_job, todo, report, bar)
-    finally:  # the root files list what exists, also after a failed or interrupted run; no temp file stays
+    def finish():  # the root files list what exists, also after a failed or interrupted run; no temp file stays
         resume.remove_leftovers(out, jobs)
         J.write_root_files(out, preset, width, height)
-    print(f"render: {len(jobs)} segments in {out / J.SPLIT}")
+
+    return Phase("render", "frame", J.run_job, jobs, {j: J.frames_done(j) for j in jobs},
+                 _render_seconds(width * height, preset.samples), finish,
+                 f"render: {len(jobs)} segments in {out / J.SPLIT}")
+
+
+def _render(args) -> None:
+    _run_alone(args, _plan_render(args))
+
+
+def _run_alone(args, phase: Phase) -> None:
+    """One phase under its own bar, counted in its units."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=phase.total, initial=sum(phase.done_before.values()), unit=phase.unit, desc=phase.name)
+
+    def report(job):
+        bar.update(job.frames - phase.done_before[job])
+
+    try:
+        _execute(args, phase.fn, phase.todo, report, bar)
+    finally:
+        bar.close()
+        phase.finish()
+    print(phase.summary)
+
+
+def _dataset(args) -> None:
+    """The render and the templates of a data set under one bar whose ETA covers both (make dataset)."""
+    from tqdm import tqdm
+
+    from syneepose.robots.catalog import load_catalog
+
+    common = ["--preset", args.preset, "--out", args.out, "--device", args.device, "--executor", args.executor,
+              "--workers", str(args.workers), *(["--ray-address", args.ray_address] if args.ray_address else [])]
+    configs = load_catalog().parse_configs(args.robots)
+    end_effectors = ",".join(dict.fromkeys(c.split("+", 1)[1] for c in configs))
+    parser = _parser()
+    phases = [_plan_render(parser.parse_args(["render", "--seed", str(args.seed), "--robots", ",".join(configs),
+                                              *common])),
+              _plan_templates(parser.parse_args(["templates", "--ee", end_effectors, *common]))]
+    weight = {p.name: max(round(1000 * p.unit_seconds), 1) for p in phases}  # integer: the updates add up exactly
+    done = {p.name: sum(p.done_before.values()) for p in phases}
+    bar = tqdm(total=sum(p.total * weight[p.name] for p in phases), initial=sum(done[p.name] * weight[p.name]
+               for p in phases), desc="dataset", bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}"
+               "{postfix}")
+
+    def show():
+        bar.set_postfix_str(", ".join(f"{p.name} {done[p.name]}/{p.total}" for p in phases))
+
+    show()
+    try:
+        for phase in phases:
+            def report(job, phase=phase):
+                units = job.frames - phase.done_before[job]
+                done[phase.name] += units
+                show()
+                bar.update(units * weight[phase.name])
+
+            try:
+                _execute(args, phase.fn, phase.todo, report, bar)
+            finally:
+                phase.finish()
+    finally:
+        bar.close()
+    for phase in phases:
+        print(phase.summary)
 
 
 def _execute(args, fn, jobs, report, bar) -> None:
@@ -111,8 +199,6 @@ def _execute(args, fn, jobs, report, bar) -> None:
     except BaseException:
         bar.leave = False
         raise
-    finally:
-        bar.close()
 
 
 def _writable(out: Path) -> None:
@@ -126,9 +212,7 @@ def _writable(out: Path) -> None:
         raise UserError(f"cannot write to --out {out}: {exc.strerror}") from exc
 
 
-def _templates(args) -> None:
-    from tqdm import tqdm
-
+def _plan_templates(args) -> Phase:
     from kernel.template_set import check_recipe
     from syneepose import jobs as J
     from syneepose import paths
@@ -149,14 +233,14 @@ def _templates(args) -> None:
     done_before = {j: J.templates_done(j) for j in jobs}
     for job in jobs:
         check_recipe(job.folder, job.samples, job.inplane_by, done_before[job] >= job.frames)
-    bar = tqdm(total=sum(j.frames for j in jobs), initial=sum(done_before.values()), unit="template",
-               desc="templates")
+    per_render = _render_seconds(settings.resolution**2, settings.samples)
+    return Phase("templates", "template", J.run_template_job, jobs, done_before,
+                 per_render / settings.inplane if args.inplane_by == "rotated" else per_render, lambda: None,
+                 f"templates: {len(jobs)} end-effectors in {out / 'templates'}")
 
-    def report(job):
-        bar.update(job.frames - done_before[job])
 
-    _execute(args, J.run_template_job, [j for j in jobs if done_before[j] < j.frames], report, bar)
-    print(f"templates: {len(jobs)} end-effectors in {out / 'templates'}")
+def _templates(args) -> None:
+    _run_alone(args, _plan_templates(args))
 
 
 def _show(args) -> None:
@@ -170,7 +254,7 @@ def _show(args) -> None:
     print(f"show: {len(sheet.tiles)} configurations in {out}; {len(written) - 1} template sheets beside it")
 
 
-def main(argv=None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m syneepose", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("assets", help="build the robot URDFs and the BOP end-effector models")
@@ -224,7 +308,22 @@ def main(argv=None) -> int:
     s.add_argument("--frames", type=int, default=4, help="frames per configuration")
     s.add_argument("--width", type=int, default=160, help="width of one frame in pixels")
     s.set_defaults(func=_show)
-    args = parser.parse_args(argv)
+    d = sub.add_parser("dataset", help="render and templates of a data set under one progress bar (make dataset)")
+    d.add_argument("--preset", default="mini", help="mini, paper or a YAML path: its segments and its templates")
+    d.add_argument("--out", required=True, help="data set root")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--robots", help="comma-separated ARM+EE configurations (default: all 18); templates for their "
+                   "end-effectors")
+    d.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
+    d.add_argument("--executor", choices=["local", "ray"], default="local")
+    d.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
+    d.add_argument("--workers", type=int, default=1, help="local worker processes")
+    d.set_defaults(func=_dataset)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
     return run_command(lambda: args.func(args))
 
 
