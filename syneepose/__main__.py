@@ -110,7 +110,7 @@ def _plan_render(args) -> Phase:
                             args.device, args.depth, args.sensor)
     plan = J.make_jobs(content, render, J.Selection(tuple(configs), preset.segments, shard), out, assets)
     jobs = plan.jobs
-    stale = resume.check_resume(out, jobs, plan.settings, args.overwrite)
+    stale = resume.check_resume(out, jobs, plan.settings, args.overwrite, J.legacy_preset_digests(content))
     resume.remove_leftovers(out, jobs)
     resume.clear_scenes(stale)
     J.write_dataset_info(out, plan, assets)

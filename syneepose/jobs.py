@@ -130,6 +130,11 @@ def job_settings(content: Content, render: RenderSettings, segments: int) -> dic
             "backgrounds": [Path(b).name for b in content.backgrounds]}
 
 
+def legacy_preset_digests(content: Content) -> set[str]:
+    """preset_sha256 values that scenes rendered before issue 16 recorded for the same frames."""
+    return {_digest(c) for c in load_preset(content.preset_name).legacy_digest_contents()}
+
+
 def _digest(content) -> str:
     return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:16]
 

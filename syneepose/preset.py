@@ -112,8 +112,16 @@ class Preset(Section):
     stations: Stations | None = None
 
     def digest_content(self) -> dict:
-        """Every value the preset fixes, defaults included: two YAMLs that render alike compare equal."""
-        return self.model_dump(mode="json")
+        """Every value that fixes the rendered frames, defaults included: two YAMLs that render alike compare
+        equal. Not `templates`: a template set records its own recipe (kernel/template_set.py), and mini's
+        going from 240 to 960 templates must not make its frames "other settings"."""
+        return self.model_dump(mode="json", exclude={"templates"})
+
+    def legacy_digest_contents(self) -> list[dict]:
+        """What digest_content was before issue 16 (templates included), with this preset's templates and with
+        the templates every shipped preset but `paper` had then: scenes recorded that way still resume."""
+        before = Templates(views=20, inplane=12, resolution=128, samples=8).model_dump(mode="json")
+        return [self.model_dump(mode="json"), {**self.model_dump(mode="json"), "templates": before}]
 
 
 def load_preset(name_or_path: str, overrides: dict | None = None) -> Preset:

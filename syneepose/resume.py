@@ -45,9 +45,11 @@ def _scene_settings(scene_dir: Path, fallback: dict | None) -> dict | None:
     return fallback
 
 
-def check_resume(out: Path, jobs: list[Job], settings: dict, overwrite: bool) -> list[Path]:
+def check_resume(out: Path, jobs: list[Job], settings: dict, overwrite: bool,
+                 same_preset: set[str] = frozenset()) -> list[Path]:
     """The scene folders this run must clear first (only with `overwrite`: all of this run's scenes that
-    hold files). Raises when a scene of the data set was rendered with other settings and would stay."""
+    hold files). Raises when a scene of the data set was rendered with other settings and would stay.
+    `same_preset`: older preset_sha256 values of this run's preset (jobs.legacy_preset_digests)."""
     out = Path(out)
     fallback = recorded_settings(out)
     ours = {job.scene_dir for job in jobs}
@@ -58,6 +60,8 @@ def check_resume(out: Path, jobs: list[Job], settings: dict, overwrite: bool) ->
         before = _scene_settings(scene_dir, fallback)
         if before is None:
             continue
+        if before.get("preset_sha256") in same_preset:
+            before = {**before, "preset_sha256": settings["preset_sha256"]}
         shared = {k: v for k, v in settings.items() if k in before}
         if {k: before[k] for k in shared} != shared:
             other.append((scene_dir, bop.settings_diff({k: before[k] for k in shared}, shared)))

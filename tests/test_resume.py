@@ -7,6 +7,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -197,3 +198,34 @@ def test_a_template_set_resumes_only_with_its_sample_count(tmp_path, assets):
     before = _files(tmp_path)
     _one_line(templates(2), "--samples 1, not 2")
     assert _files(tmp_path) == before
+
+
+def test_the_template_settings_are_not_render_settings(copy, tmp_path):
+    """Frames do not depend on the preset's `templates`: a preset differing only there resumes with nothing to
+    do, and so do scenes recorded before issue 16, whose preset_sha256 counted the templates (mini's then
+    20 x 12 views), while another render setting is still refused."""
+    import yaml
+
+    from syneepose.jobs import _digest
+    from syneepose.preset import load_preset
+
+    before = _files(copy)
+    preset = yaml.safe_load(Path("scenes/mini.yaml").read_text())
+    preset["templates"] = {"views": 7, "inplane": 3, "resolution": 64, "samples": 2}
+    (tmp_path / "mini.yaml").write_text(yaml.safe_dump(preset))
+    proc = _render(copy, "--preset", str(tmp_path / "mini.yaml"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    legacy = load_preset("mini").model_dump(mode="json")
+    legacy["templates"] = {"views": 20, "inplane": 12, "resolution": 128, "samples": 8}
+    meta_path = _scene(copy) / "scene_robot.json"
+    meta = json.loads(meta_path.read_text())
+    meta["settings"]["preset_sha256"] = _digest(legacy)
+    meta_path.write_text(json.dumps(meta))
+    proc = _render(copy)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    after = _files(copy)
+    assert {k for k in after if after[k] != before.get(k)} <= {_scene(copy).relative_to(copy) / "scene_robot.json",
+                                                                 Path("dataset_info.json")}
+    meta["settings"]["preset_sha256"] = "0" * 16
+    meta_path.write_text(json.dumps(meta))
+    _one_line(_render(copy), "preset_sha256 0000000000000000 ->")
