@@ -52,8 +52,7 @@ def _roll(image: np.ndarray, angle: float, interpolation: int) -> np.ndarray:
     """`image` as the camera of `poses` rolled by `angle` (radians) sees it: with the principal point at the
     image centre, rolling the camera about its axis rotates the image about the centre."""
     c = (image.shape[1] - 1) / 2, (image.shape[0] - 1) / 2
-    cos, sin = np.cos(angle), np.sin(angle)
-    M = np.array([[cos, -sin, c[0] - cos * c[0] + sin * c[1]], [sin, cos, c[1] - sin * c[0] - cos * c[1]]])
+    M = cv2.getRotationMatrix2D(c, -np.degrees(angle), 1.0)  # OpenCV's angle turns the other way, in degrees
     return cv2.warpAffine(image, M, (image.shape[1], image.shape[0]), flags=interpolation | cv2.WARP_INVERSE_MAP,
                           borderValue=0)
 

@@ -76,10 +76,9 @@ def reset(width: int, height: int, samples: int, denoise: bool = False, max_boun
 
 
 def _emission_material():
-    material = bpy.data.materials.new("ee-only")
-    material.use_nodes = True
+    material, bsdf = _principled("ee-only")
     nodes = material.node_tree.nodes
-    nodes.remove(nodes["Principled BSDF"])
+    nodes.remove(bsdf)
     emission = nodes.new("ShaderNodeEmission")
     material.node_tree.links.new(emission.outputs["Emission"], nodes["Material Output"].inputs["Surface"])
     return material
