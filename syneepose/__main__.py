@@ -14,6 +14,8 @@ from syneepose.preset import load_preset, templates_with
 from syneepose.templates import INPLANE_BY
 
 MAX_WORKERS = 64
+MAX_THREADS = 1024
+THREADS_HELP = "Cycles threads per job (default: every core locally; 1 per Ray task, which asks Ray for as many CPUs)"
 
 
 def _assets(args) -> None:
@@ -46,6 +48,20 @@ def _check_run(args) -> None:
         raise UserError(f"--seed {args.seed}: must be >= 0 (numpy seeds are non-negative)")
     if not 1 <= args.workers <= MAX_WORKERS:
         raise UserError(f"--workers {args.workers}: must lie in 1..{MAX_WORKERS}")
+    if args.threads is not None and not 1 <= args.threads <= MAX_THREADS:
+        raise UserError(f"--threads {args.threads}: must lie in 1..{MAX_THREADS}")
+    if args.executor == "ray":
+        from syneepose.executors import check_ray_address
+
+        check_ray_address(args.ray_address)
+
+
+def _threads(args) -> int:
+    """Cycles threads per job, 0 for every core: locally all cores by default; a Ray task asks Ray for its
+    threads as CPUs, so by default one CPU and one thread each, and Ray packs a task per CPU of a node."""
+    if args.threads is not None:
+        return args.threads
+    return 1 if args.executor == "ray" else 0
 
 
 @dataclass
@@ -107,7 +123,7 @@ def _plan_render(args) -> Phase:
     content = J.Content(preset, args.preset, args.seed, args.marker, backgrounds)
     width, height = preset.resolution
     render = RenderSettings(width, height, preset.samples, preset.render.denoise, preset.render.max_bounces,
-                            args.device, args.depth, args.sensor)
+                            args.device, args.depth, args.sensor, _threads(args))
     plan = J.make_jobs(content, render, J.Selection(tuple(configs), preset.segments, shard), out, assets)
     jobs = plan.jobs
     stale = resume.check_resume(out, jobs, plan.settings, args.overwrite, J.legacy_preset_digests(content))
@@ -152,7 +168,8 @@ def _dataset(args) -> None:
     from syneepose.robots.catalog import load_catalog
 
     common = ["--preset", args.preset, "--out", args.out, "--device", args.device, "--executor", args.executor,
-              "--workers", str(args.workers), *(["--ray-address", args.ray_address] if args.ray_address else [])]
+              "--workers", str(args.workers), *(["--ray-address", args.ray_address] if args.ray_address else []),
+              *(["--threads", str(args.threads)] if args.threads is not None else [])]
     configs = load_catalog().parse_configs(args.robots)
     end_effectors = ",".join(dict.fromkeys(c.split("+", 1)[1] for c in configs))
     parser = _parser()
@@ -193,7 +210,7 @@ def _execute(args, fn, jobs, report, bar) -> None:
 
     try:
         if args.executor == "ray":
-            run_ray(fn, jobs, args.ray_address, report)
+            run_ray(fn, jobs, args.ray_address, report, cpus=max(_threads(args), 1))
         else:
             run_local(fn, jobs, args.workers, report)
     except BaseException:
@@ -229,7 +246,7 @@ def _plan_templates(args) -> Phase:
     assets = paths.assets_dir()
     build_assets(assets, [f"panda+{n}" for n in names], log=lambda *_: None)
     jobs = [J.TemplateJob(n, str(out), settings.views, settings.inplane, settings.resolution, settings.samples,
-                          str(assets), args.device, args.inplane_by) for n in names]
+                          str(assets), args.device, args.inplane_by, _threads(args)) for n in names]
     done_before = {j: J.templates_done(j) for j in jobs}
     for job in jobs:
         check_recipe(job.folder, job.samples, job.inplane_by, done_before[job] >= job.frames)
@@ -285,6 +302,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--executor", choices=["local", "ray"], default="local")
     r.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     r.add_argument("--workers", type=int, default=1, help="local worker processes (Cycles uses all cores)")
+    r.add_argument("--threads", type=int, help=THREADS_HELP)
     r.set_defaults(func=_render)
     t = sub.add_parser("templates", help="render the FEEPE templates of end-effectors")
     t.add_argument("--out", required=True, help="data set root (templates go to <out>/templates/)")
@@ -300,6 +318,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--executor", choices=["local", "ray"], default="local")
     t.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     t.add_argument("--workers", type=int, default=1, help="local worker processes")
+    t.add_argument("--threads", type=int, help=THREADS_HELP)
     t.set_defaults(func=_templates)
     s = sub.add_parser("show", help="contact sheet of a data set and a sheet per template set (PNG)")
     s.add_argument("dataset", help="data set root (python -m syneepose render --out DIR)")
@@ -318,6 +337,7 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--executor", choices=["local", "ray"], default="local")
     d.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
     d.add_argument("--workers", type=int, default=1, help="local worker processes")
+    d.add_argument("--threads", type=int, help=THREADS_HELP)
     d.set_defaults(func=_dataset)
     return parser
 

@@ -12,9 +12,12 @@ import ctypes
 import os
 import pickle
 import signal
+import socket
 import sys
 from multiprocessing import get_context
 from multiprocessing.connection import wait
+
+from kernel.errors import UserError
 
 GRACE_S = 2.0  # a worker asked to stop gets this long before it is killed
 
@@ -81,13 +84,19 @@ def _die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
-def run_ray(fn, jobs: list, address: str | None, progress) -> None:
-    """Jobs as Ray tasks on an existing cluster (`address`) or a local instance; an interrupted run cancels
-    every task it started."""
+def run_ray(fn, jobs: list, address: str | None, progress, cpus: int = 1) -> None:
+    """Jobs as Ray tasks, each asking for `cpus` CPUs, on an existing cluster (`address`) or a local instance.
+    A task whose worker dies is run again (up to twice) and resumes from the whole frames on disk; an
+    interrupted run cancels every task it started."""
     import ray
 
-    ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-    remote = ray.remote(max_retries=2, max_calls=1)(fn)  # a fresh worker process per job, as locally
+    try:
+        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    except ConnectionError as exc:  # a failed token check arrives as one too
+        raise UserError(f"--ray-address {address}: no Ray cluster answers there ({str(exc).splitlines()[0]}); start "
+                        "one with `ray start --head`, and set RAY_AUTH_MODE=token on this machine when the cluster "
+                        "uses token authentication (the default of `ray start` since Ray 2.59)") from None
+    remote = ray.remote(max_retries=2, max_calls=1, num_cpus=cpus)(fn)  # a fresh worker per job, as locally
     pending = {remote.remote(job): job for job in jobs}
     try:
         while pending:
@@ -98,3 +107,17 @@ def run_ray(fn, jobs: list, address: str | None, progress) -> None:
     finally:
         for ref in pending:
             ray.cancel(ref, force=True)
+
+
+def check_ray_address(address: str | None, timeout: float = 5.0) -> None:
+    """Ray waits minutes for a head that is not there; a closed port is one line at once, before any write."""
+    if address in (None, "auto"):
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not (host and port.isdigit()):
+        raise UserError(f"--ray-address {address}: give HOST:PORT of a Ray head (`ray start --head` prints it)")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise UserError(f"--ray-address {address}: nothing answers there ({exc.strerror or exc}); start a Ray head "
+                        "with `ray start --head` or give its address") from None

@@ -198,6 +198,7 @@ class TemplateJob:
     assets: str
     device: str = "cpu"
     inplane_by: str = "rotated"  # templates.INPLANE_BY
+    threads: int = 0  # Cycles CPU threads; 0: all cores
 
     @property
     def folder(self) -> Path:
@@ -223,7 +224,8 @@ def run_template_job(job: TemplateJob) -> int:
     ee = load_catalog().end_effector(job.ee)
     with _quiet_stdout():
         return render_templates(ee, paths.part_urdf(job.ee, Path(job.assets)), job.folder, job.views, job.inplane,
-                                job.resolution, job.samples, job.device, inplane=job.inplane_by)
+                                job.resolution, job.samples, job.device, inplane=job.inplane_by,
+                                threads=job.threads)
 
 
 def write_dataset_info(out: Path, plan: Plan, assets: Path) -> None:

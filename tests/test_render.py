@@ -242,6 +242,9 @@ def test_a_stopped_render_stops_every_worker_and_resumes(four_frames, tmp_path, 
     (["--preset", "nosuch"], "nosuch"),
     (["--resolution", "64by48"], "WxH"),
     (["--shard", "3/2"], "shard"),
+    (["--threads", "0"], "--threads"),
+    (["--executor", "ray", "--ray-address", "127.0.0.1:1"], "nothing answers"),
+    (["--executor", "ray", "--ray-address", "head:port"], "HOST:PORT"),
 ])
 def test_bad_input_one_line(tmp_path, args, word):
     cmd = [sys.executable, "-m", "syneepose", "render", "--out", str(tmp_path / "o"), *args]
@@ -249,6 +252,7 @@ def test_bad_input_one_line(tmp_path, args, word):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and word in lines[0]
+    assert not (tmp_path / "o").exists()  # refused before anything is written
 
 
 def test_bad_preset_key_and_unwritable_out(tmp_path):
@@ -288,12 +292,48 @@ def test_templates_reproject_onto_their_masks(tmp_path, assets):
             assert np.abs(centre - 23.5).max() < 8  # object centred
 
 
-def test_ray_executor_matches_local(rendered, tmp_path):
+def _ray_task_pids(function: str) -> list[int]:
+    """Processes running a Ray task of `function` (Ray names them ray::<function>)."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        try:
+            if (d / "cmdline").read_bytes().startswith(f"ray::{function}".encode()):
+                pids.append(int(d.name))
+        except (OSError, ValueError):
+            continue
+    return pids
+
+
+def test_a_ray_task_whose_worker_dies_runs_again_and_ends_as_the_local_render(rendered, tmp_path):
+    """The worker of the run's one task is killed (SIGKILL) after its first frame: Ray runs the task again, it
+    resumes from the whole frames on disk, and the scene ends byte for byte as the local render's."""
     out = tmp_path / "ray"
-    proc = _render(out, "--frames", "2", "--robots", CONFIGS[1], "--executor", "ray")
-    assert proc.returncode == 0, proc.stderr[-2000:]
+    cmd = [sys.executable, "-m", "syneepose", "render", "--preset", "mini", "--out", str(out), *TINY,
+           "--frames", "2", "--robots", CONFIGS[1], "--executor", "ray"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    frames_at_kill = None
+    deadline = time.time() + 180
+    while frames_at_kill is None and time.time() < deadline and proc.poll() is None:
+        gt = next(iter(out.glob("test/*/scene_gt.json")), None)
+        frames = len(json.loads(gt.read_text() or "{}")) if gt is not None else 0
+        pids = _ray_task_pids("run_job")
+        if frames and pids:
+            frames_at_kill = frames
+            for pid in pids:
+                os.kill(pid, signal.SIGKILL)
+        time.sleep(0.02)
+    _, err = proc.communicate(timeout=300)
+    assert frames_at_kill == 1, "the worker was not killed mid-segment"
+    assert proc.returncode == 0, err[-2000:]
     [scene] = _scenes(out)
-    assert (scene / "scene_gt.json").read_text() == (split_dir(rendered) / scene.name / "scene_gt.json").read_text()
+    ref = split_dir(rendered) / scene.name
+    for name in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_gt_coco.json", "scene_robot.json"):
+        assert (scene / name).read_text() == (ref / name).read_text(), name
+    for folder in ("rgb", "depth", "mask", "mask_visib", "robot_mask_visib"):
+        assert sorted(p.name for p in (scene / folder).iterdir()) == sorted(p.name for p in (ref / folder).iterdir())
+        for path in (ref / folder).iterdir():
+            assert (scene / folder / path.name).read_bytes() == path.read_bytes(), path
+    assert not [p for p in out.rglob("*") if ".tmp" in p.name or p.name.startswith("tmp")]
 
 
 def test_gpu_request_without_gpu_is_one_clear_line(tmp_path, assets):

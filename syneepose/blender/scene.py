@@ -30,8 +30,8 @@ BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 def reset(width: int, height: int, samples: int, denoise: bool = False, max_bounces: int = 12,
           world_color=(0.05, 0.05, 0.05), world_strength: float = 1.0, transparent: bool = False,
-          device: str = "cpu") -> None:
-    """Empty Cycles scene; `transparent` renders the background black (templates)."""
+          device: str = "cpu", threads: int = 0) -> None:
+    """Empty Cycles scene; `transparent` renders the background black (templates); `threads` 0: all cores."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -41,6 +41,8 @@ def reset(width: int, height: int, samples: int, denoise: bool = False, max_boun
     scene.cycles.use_denoising = denoise
     scene.cycles.max_bounces = max_bounces
     scene.cycles.seed = 0
+    scene.render.threads_mode = "FIXED" if threads else "AUTO"
+    scene.render.threads = max(threads, 1)
     scene.render.film_transparent = transparent
     # Off: with persistent data Cycles updates the scene between frames and a run's frames 1+ land on one
     # of two RGB outputs (66% of pixels, up to 75 levels apart, ur5e+panda_hand at mini settings); off, runs

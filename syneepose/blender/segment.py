@@ -45,7 +45,7 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scen
     if not todo:
         return 0
     bscene.reset(render.width, render.height, render.samples, render.denoise, render.max_bounces, spec.world_color,
-                 spec.world_strength, device=render.device)
+                 spec.world_strength, device=render.device, threads=render.threads)
     bscene.set_camera(spec.K, render.width, render.height, spec.T_base_cam)
     bscene.add_lights(spec.lights)
     bscene.add_planes(spec.planes)

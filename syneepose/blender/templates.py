@@ -17,7 +17,8 @@ from syneepose.robots.model import read_urdf
 
 
 def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane: int, resolution: int,
-                     samples: int, device: str = "cpu", progress=None, inplane: str = "rotated") -> int:
+                     samples: int, device: str = "cpu", progress=None, inplane: str = "rotated",
+                     threads: int = 0) -> int:
     """Render the templates not yet on disk; returns how many were written. `inplane="rotated"` renders each
     view once and rolls the images for its in-plane rotations (T.roll_template); "rendered" renders every
     template, the reference the rotation is tested against."""
@@ -33,7 +34,7 @@ def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane:
     if not todo:
         return 0
     bscene.reset(resolution, resolution, samples, denoise=samples >= 4, world_color=(1.0, 1.0, 1.0),
-                 world_strength=1.0, transparent=True, device=device)
+                 world_strength=1.0, transparent=True, device=device, threads=threads)
     bscene.set_camera(K, resolution, resolution, np.eye(4))
     objects = bscene.RobotObjects(model, Path(part_urdf).parent, {lk.name for lk in model.links})
     objects.pose(Kinematics(model).link_poses(canonical))

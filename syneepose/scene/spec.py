@@ -81,3 +81,4 @@ class RenderSettings:
     device: str = "cpu"  # "gpu": Cycles on the first GPU backend found
     depth: str = "exact"  # "stereo" | "both": simulated active-stereo depth (syneepose/stereo.py)
     sensor: str = "d435"  # the stereo sensor's profile: a name in scenes/sensors/ or a YAML path
+    threads: int = 0  # Cycles CPU threads; 0: every core of the machine the job runs on
