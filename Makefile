@@ -67,6 +67,8 @@ test: assets
 bench: dataset
 	$(PY) benchmarks/assets_build.py
 	$(PY) benchmarks/render.py
+	$(PY) benchmarks/render_profile.py
+	$(PY) benchmarks/ray_scaling.py
 	$(PY) benchmarks/templates.py
 	$(PY) benchmarks/estimator.py --dataset $(DATA)
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette

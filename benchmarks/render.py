@@ -1,5 +1,5 @@
 """Render benchmark: seconds per frame at 640x480 / 16 spp on a fixed scene, our overhead over a bare
-Cycles render of the same scene, and resident memory over a 300-frame segment.
+Cycles render of the same scene (the two alternated), and resident memory over a 300-frame segment.
 
 Prints figures, asserts nothing: `make bench` or `.venv/bin/python benchmarks/render.py [--quick]`.
 """
@@ -8,6 +8,8 @@ import argparse
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 from syneepose import paths
 from syneepose.blender import scene as bscene
@@ -61,16 +63,20 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true", help="3 frames and a 60-frame memory run")
     args = parser.parse_args()
-    frames = 3 if args.quick else 6
+    frames, pairs = (3, 1) if args.quick else (6, 3)
     robot, spec, render = spec_for(frames, 640, 480, 16)
+    ours, bare = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        render_segment(spec, render, robot, Path(tmp) / "warm", None)  # first frame includes scene build
-        t0 = time.perf_counter()
-        render_segment(spec, render, robot, Path(tmp) / "timed", None)
-        ours = (time.perf_counter() - t0) / frames
-    bare = bare_cycles(robot, spec, render, frames)
-    print(f"640x480, 16 spp, {frames} frames, {CONFIG}: ours {ours:.2f} s/frame (incl. scene build), "
-          f"bare Cycles {bare:.2f} s/frame, overhead {100 * (ours - bare) / bare:+.1f} %")
+        render_segment(spec, render, robot, Path(tmp) / "warm", None)
+        for k in range(pairs):  # alternated, so a machine that slows down slows both alike
+            t0 = time.perf_counter()
+            render_segment(spec, render, robot, Path(tmp) / f"timed{k}", None)
+            ours.append((time.perf_counter() - t0) / frames)
+            bare.append(bare_cycles(robot, spec, render, frames))
+    ratio = np.median(np.array(ours) / np.array(bare))
+    print(f"640x480, 16 spp, {frames} frames, {CONFIG}, {pairs} alternated pairs: ours {np.median(ours):.2f} s/frame "
+          f"(incl. scene build), bare Cycles {np.median(bare):.2f} s/frame, overhead {100 * (ratio - 1):+.1f} % "
+          f"(median of the pairs' ratios; each: {', '.join(f'{o / b:.3f}' for o, b in zip(ours, bare))})")
 
     n = 60 if args.quick else 300
     robot, spec, render = spec_for(n, 160, 120, 1)

@@ -28,16 +28,21 @@ REFERENCE = {"samples": 256, "use_denoising": False, "max_bounces": 12}
 
 LIGHT_TREE_OFF = {"use_light_tree": False}
 BOUNCES_4 = {"max_bounces": 4, "diffuse_bounces": 2, "glossy_bounces": 2}
+ALBEDO_ONLY = {"denoising_input_passes": "RGB_ALBEDO"}
+NO_CAUSTICS = {"caustics_reflective": False, "caustics_refractive": False}
 VARIANTS = {
     "today (16 spp, OIDN, 8 bounces)": [],
     "OIDN prefilter FAST": [{"denoising_prefilter": "FAST"}],
     "OIDN quality BALANCED": [{"denoising_quality": "BALANCED"}],
+    "OIDN on RGB + albedo (no normal)": [ALBEDO_ONLY],
     "8 spp": [{"samples": 8}],
-    "adaptive 0.05, 16 spp max": [{"use_adaptive_sampling": True, "adaptive_threshold": 0.05}],
     "4 bounces (diffuse/glossy 2)": [BOUNCES_4],
+    "caustics off": [NO_CAUSTICS],
     "light tree off": [LIGHT_TREE_OFF],
     "light tree off, 4 bounces": [LIGHT_TREE_OFF, BOUNCES_4],
-    "light tree off, 4 bounces, 12 spp": [LIGHT_TREE_OFF, BOUNCES_4, {"samples": 12}],
+    "light tree off, 4 bounces, caustics off": [LIGHT_TREE_OFF, BOUNCES_4, NO_CAUSTICS],
+    "light tree off, 4 bounces, RGB + albedo": [LIGHT_TREE_OFF, BOUNCES_4, ALBEDO_ONLY],
+    "light tree off, 4 bounces, caustics off, RGB + albedo": [LIGHT_TREE_OFF, BOUNCES_4, NO_CAUSTICS, ALBEDO_ONLY],
 }
 
 
