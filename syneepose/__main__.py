@@ -300,7 +300,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--overwrite", action="store_true",
                    help="render this run's scenes again from scratch (a rerun with other settings is refused without it)")
     r.add_argument("--executor", choices=["local", "ray"], default="local")
-    r.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
+    r.add_argument("--ray-address", help="HOST:PORT of a running Ray cluster, or auto on its head (default: start a local one)")
     r.add_argument("--workers", type=int, default=1, help="local worker processes (Cycles uses all cores)")
     r.add_argument("--threads", type=int, help=THREADS_HELP)
     r.set_defaults(func=_render)
@@ -316,7 +316,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--inplane-by", choices=INPLANE_BY, default="rotated",
                    help="in-plane rotations rolled from each view's one render (default), or each rendered")
     t.add_argument("--executor", choices=["local", "ray"], default="local")
-    t.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
+    t.add_argument("--ray-address", help="HOST:PORT of a running Ray cluster, or auto on its head (default: start a local one)")
     t.add_argument("--workers", type=int, default=1, help="local worker processes")
     t.add_argument("--threads", type=int, help=THREADS_HELP)
     t.set_defaults(func=_templates)
@@ -335,7 +335,7 @@ def _parser() -> argparse.ArgumentParser:
                    "end-effectors")
     d.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
     d.add_argument("--executor", choices=["local", "ray"], default="local")
-    d.add_argument("--ray-address", help="address of a running Ray cluster (default: start a local one)")
+    d.add_argument("--ray-address", help="HOST:PORT of a running Ray cluster, or auto on its head (default: start a local one)")
     d.add_argument("--workers", type=int, default=1, help="local worker processes")
     d.add_argument("--threads", type=int, help=THREADS_HELP)
     d.set_defaults(func=_dataset)
