@@ -12,8 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from syneepose import paths
-from syneepose.blender import scene as bscene
-from syneepose.blender.segment import render_segment
+from syneepose.blender.segment import build_scene, render_segment
 from syneepose.preset import load_preset
 from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.robot import load_robot
@@ -42,13 +41,7 @@ def bare_cycles(robot, spec, render, frames: int) -> float:
     """The same scene and poses, timing only bpy's render call (no FK, EXR read, PNG or JSON)."""
     import bpy
 
-    bscene.reset(render.width, render.height, render.samples, render.denoise, render.max_bounces, spec.world_color,
-                 spec.world_strength)
-    bscene.set_camera(spec.K, render.width, render.height, spec.T_base_cam)
-    bscene.add_lights(spec.lights)
-    bscene.add_planes(spec.planes)
-    bscene.add_distractors(spec.distractors)
-    objects = bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
+    objects = build_scene(spec, render, robot)
     poses = [robot.T_base_link(q) for q in spec.q]
     with tempfile.TemporaryDirectory() as tmp:
         bpy.context.scene.render.filepath = str(Path(tmp) / "bare.exr")

@@ -18,21 +18,13 @@ from kernel.transforms import inv_T
 from syneepose import paths
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import linear_to_srgb8, read_passes
+from syneepose.blender.segment import build_scene
 from syneepose.preset import load_preset
 from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.robot import load_robot
 from syneepose.scene.motion import MotionChecks
 from syneepose.scene.plan import plan_segment
-
-
-def build(robot, spec, preset):
-    bscene.reset(*preset.resolution, preset.samples, preset.render.denoise, preset.render.max_bounces,
-                 spec.world_color, spec.world_strength)
-    bscene.set_camera(spec.K, *preset.resolution, spec.T_base_cam)
-    bscene.add_lights(spec.lights)
-    bscene.add_planes(spec.planes)
-    bscene.add_distractors(spec.distractors)
-    return bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
+from syneepose.scene.spec import RenderSettings
 
 
 def render_call(path: Path) -> float:
@@ -54,7 +46,8 @@ def main() -> None:
     spec = plan_segment(preset, robot, MotionChecks(robot, mesh), 0, 0, preset.frames, *preset.resolution)
     plan_s = time.perf_counter() - start
     start = time.perf_counter()
-    objects = build(robot, spec, preset)
+    objects = build_scene(spec, RenderSettings(*preset.resolution, preset.samples, preset.render.denoise,
+                                               preset.render.max_bounces), robot)
     build_s = time.perf_counter() - start
     frames = np.linspace(0, preset.frames - 1, args.frames).round().astype(int)
     steps = {"FK and object poses": [], "render call": [], "EXR read": [], "BOP write": []}

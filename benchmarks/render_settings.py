@@ -17,11 +17,13 @@ import numpy as np
 from syneepose import paths
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import linear_to_srgb8
+from syneepose.blender.segment import build_scene
 from syneepose.preset import load_preset
 from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.robot import load_robot
 from syneepose.scene.motion import MotionChecks
 from syneepose.scene.plan import plan_segment
+from syneepose.scene.spec import RenderSettings
 
 REFERENCE = {"samples": 256, "use_denoising": False, "max_bounces": 12}
 
@@ -56,20 +58,11 @@ def build(config: str, frame_count: int, seed: int):
 
 def render_frame(robot, spec, preset, changes: list, frame: int) -> tuple[np.ndarray, float]:
     """A fresh scene with `changes` applied, one frame: (sRGB as float, seconds in Blender's render call)."""
-    bscene.reset(*preset.resolution, preset.samples, preset.render.denoise, preset.render.max_bounces,
-                 spec.world_color, spec.world_strength)
-    scene = bpy.context.scene
+    objects = build_scene(spec, RenderSettings(*preset.resolution, preset.samples, preset.render.denoise,
+                                               preset.render.max_bounces), robot)
     for part in changes:
-        if callable(part):
-            part(scene)
-        else:
-            for key, value in part.items():
-                setattr(scene.cycles, key, value)
-    bscene.set_camera(spec.K, *preset.resolution, spec.T_base_cam)
-    bscene.add_lights(spec.lights)
-    bscene.add_planes(spec.planes)
-    bscene.add_distractors(spec.distractors)
-    objects = bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
+        for key, value in part.items():
+            setattr(bpy.context.scene.cycles, key, value)
     objects.pose(robot.T_base_link(spec.q[frame]))
     start = time.perf_counter()
     out = bscene.render()

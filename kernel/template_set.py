@@ -110,13 +110,12 @@ class TemplateSetWriter:
         return str(template_id) in self.index
 
     def write(self, templates: list[Template]) -> None:
-        for template in templates:
+        for template in templates:  # the index file is written after all of the batch's images
             name = f"{template.id:06d}.png"
             write_png(self.folder / "rgb" / name, np.ascontiguousarray(template.rgb[..., ::-1]))
             write_png(self.folder / "depth" / name,
                       np.round(template.depth * 1000.0 / DEPTH_SCALE).astype(np.uint16))
             write_png(self.folder / "mask" / name, template.mask.astype(np.uint8) * 255)
-        for template in templates:
             self.index[str(template.id)] = {
                 "view": template.view, "inplane": template.inplane, "cam_K": template.K.ravel().tolist(),
                 "T_cam_model": template.T_cam_model.tolist(), "depth_scale": DEPTH_SCALE, "obj_id": self.obj_id,

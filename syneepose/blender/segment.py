@@ -29,6 +29,18 @@ def _with_sensor_depth(frame: Frame, rig: IrRig, spec: SegmentSpec, render: Rend
                    ir_right=right if keep_ir else None)
 
 
+def build_scene(spec: SegmentSpec, render: RenderSettings, robot: Robot) -> bscene.RobotObjects:
+    """A fresh Cycles scene of the segment (camera, lights, backdrop, distractors, robot), the robot not yet
+    posed; what the renderer and the render benchmarks start from."""
+    bscene.reset(render.width, render.height, render.samples, render.denoise, render.max_bounces, spec.world_color,
+                 spec.world_strength, device=render.device, threads=render.threads)
+    bscene.set_camera(spec.K, render.width, render.height, spec.T_base_cam)
+    bscene.add_lights(spec.lights)
+    bscene.add_planes(spec.planes)
+    bscene.add_distractors(spec.distractors)
+    return bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
+
+
 def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scene_dir: Path, progress=None,
                    settings: dict | None = None) -> int:
     """Render the frames not yet on disk; returns how many were rendered. `settings`: what produced them
@@ -44,13 +56,7 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scen
     todo = [i for i in range(spec.n_frames) if not writer.done(i)]
     if not todo:
         return 0
-    bscene.reset(render.width, render.height, render.samples, render.denoise, render.max_bounces, spec.world_color,
-                 spec.world_strength, device=render.device, threads=render.threads)
-    bscene.set_camera(spec.K, render.width, render.height, spec.T_base_cam)
-    bscene.add_lights(spec.lights)
-    bscene.add_planes(spec.planes)
-    bscene.add_distractors(spec.distractors)
-    objects = bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
+    objects = build_scene(spec, render, robot)
     board = bscene.add_board(spec.marker) if spec.marker is not None else None
     rig = IrRig(sensor, render.width, render.height, seed=spec.stream) if sensor is not None else None
     T_cam_base = inv_T(spec.T_base_cam)
