@@ -73,6 +73,7 @@ bench: dataset
 	$(PY) benchmarks/estimator.py --dataset $(DATA)
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette --silhouette robot
+	$(PY) benchmarks/silhouette.py --dataset $(DATA)
 	$(PY) benchmarks/metrics.py
 
 clean-assets:

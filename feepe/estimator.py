@@ -33,6 +33,7 @@ VARIANTS = ("A", "B", "C", "D")
 REFINEMENTS = ("none", "silhouette", "silhouette+depth")
 SILHOUETTES = ("ee", "robot")
 IOU_STRIDE = 2  # the refinement's decisions compare mask IoUs on every second pixel
+MIN_DECREASE = 1e-6  # the refinement's solves stop once a step promises less than this fraction of the cost
 # The optimisation and the refinement multiply many small matrices (normal equations of N x 6 Jacobians,
 # N x 3 points by 3 x 3 rotations). OpenBLAS's threads cost more than they save there: a 10000 x 6 normal
 # matrix took 0.15 ms on one thread and 1.4-23 ms on two while the cores were busy. Those stages run on one.
@@ -331,14 +332,14 @@ class Estimator:
 
     def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:
         no_matches = stack([])
-        opts, inner = self.opts, OptimizeOptions(max_iterations=5)
+        opts, inner = self.opts, OptimizeOptions(max_iterations=5, min_decrease=MIN_DECREASE)
         for k, sigma in enumerate(sigmas):
             # beside depth, the masks weigh by how well they fit: a segmenter's few-pixel errors then yield
             # the range to depth, exact masks keep it (at the finest stage, down to min_sigma)
             floor = opts.silhouette_min_sigma_px if clouds and k == len(sigmas) - 1 else sigma
             for _ in range(opts.silhouette_rounds):
-                terms = [contour_term(self.parts, T, frames, floor, step_px=max(1.0, sigma / 2),
-                                      measured=bool(clouds))]
+                model = self.parts if k == len(sigmas) - 1 else self.parts.coarse  # exact at the finest stage
+                terms = [contour_term(model, T, frames, floor, step_px=max(1.0, sigma / 2), measured=bool(clouds))]
                 if clouds:
                     planes = associate(T, clouds, self.model, opts.icp_gate_m)
                     terms.append(sensor_plane_term(planes, T, opts.depth_sigma_m, opts.depth_sigma_z2))

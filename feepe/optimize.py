@@ -119,6 +119,9 @@ class OptimizeOptions:
     sigma_px: float = 2.0  # crop pixels
     sigma_m: float = 0.005
     max_iterations: int = 30
+    # stop once a Gauss-Newton step predicts less than this fraction of the cost (0: never, as the paper's
+    # variants run); else a converged solve keeps raising the damping through ten trials that all fail
+    min_decrease: float = 0.0
 
 
 def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
@@ -144,6 +147,10 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
             J = J.reshape(-1, 6)
             H += (J * w[:, None]).T @ J
             g += J.T @ (w * e.ravel())
+        if opts.min_decrease > 0:
+            x = np.linalg.solve(H + 1e-12 * np.eye(6), -g)
+            if -(g @ x + 0.5 * x @ H @ x) < opts.min_decrease * cost:
+                break
         while True:
             x = np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), -g)
             T_new = _step(T, x)

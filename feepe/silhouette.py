@@ -4,32 +4,38 @@ given the robot's mask and link poses, the whole robot's outline (every arm link
 kinematics, as EasyHeC fits the whole arm's mask; here by contour distance, not differentiable rendering).
 
 The mask is the one input no depth noise touches. Each key frame keeps the signed distance to its mask
-boundary; the model's outer contour points (rim edges of the mesh whose outside neighbour pixel misses
-the model, found by ray casting) are pulled to distance zero. Contour points are exact mesh geometry,
+boundary; the model's outer contour points (rim edges of the mesh whose image just outside misses the
+model's projected triangles, feepe/raster.py) are pulled to distance zero. Contour points are exact mesh geometry,
 not pixel centres of a rendered mask, so the fit carries no half-pixel shrink.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import cv2
+import numba
 import numpy as np
 import trimesh
-from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-from feepe.depth import backproject, depth_at
-from feepe.optimize import project, row_jacobian
+from feepe import raster
+from feepe.depth import depth_at
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
 
 BORDER_PX = 2  # contour points this close to the image border are dropped: the mask is cut there
+INSIDE_PX = 2.5  # a pixel this far (px) from any pixel off a rendered mask is inside the model's outline
+_DISK = (np.add.outer(np.arange(-2, 3) ** 2, np.arange(-2, 3) ** 2) <= INSIDE_PX**2).astype(np.uint8)
 
 
 OCCLUDER_MARGIN_M = 0.03  # observed depth this much nearer than the model there: something stands in front
 NEAR_M = 0.05  # contour edges nearer the camera than this are left out (a link can reach behind it)
 REUSE_PX = 0.5  # a frame's contour is extracted again once the model has moved this far in its image
+COARSE_M = 0.003  # mask IoUs (at every second pixel, where a pixel spans 5 mm or more) and the coarse stages
+# of a descent use a copy of each mesh clustered to this grid: 2-6x fewer faces; at mini's distances its
+# contour lies on the exact mask's outline as closely as the exact contour does (0.2 px mean)
 
 
 @dataclass
@@ -40,9 +46,10 @@ class MaskView:
     mask: np.ndarray  # (H, W) bool
     K: np.ndarray  # (3, 3) full-image intrinsics
     depth: np.ndarray | None = None  # (H, W) metres, 0 unknown; None: no occlusion reasoning
-    # the last contour extracted on this frame per point spacing: (T_cam_parts, visible model points per
-    # part). A new key frame moves the calibration a little; the other frames' outlines then stay put.
+    # the last contour extracted on this frame per model and point spacing: (T_cam_parts, visible model
+    # points per part). A new key frame moves the calibration a little; the other frames' outlines then stay put.
     contours: dict = field(default_factory=dict, repr=False)
+    ious: dict = field(default_factory=dict, repr=False)  # the same for the mask IoU per model and stride
 
     @property
     def sdt(self) -> np.ndarray:
@@ -70,24 +77,58 @@ def mask_view(mask: np.ndarray, K: np.ndarray, depth: np.ndarray | None = None) 
 
 
 def sample(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of an (H, W) or (H, W, C) image at sub-pixel (u, v); uv inside the image."""
-    h, w = img.shape[:2]
-    u = np.clip(uv[:, 0], 0, w - 1.001)
-    v = np.clip(uv[:, 1], 0, h - 1.001)
-    u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
-    a, b = u - u0, v - v0
-    if img.ndim == 3:
-        a, b = a[:, None], b[:, None]
-    return ((1 - a) * (1 - b) * img[v0, u0] + a * (1 - b) * img[v0, u0 + 1]
-            + (1 - a) * b * img[v0 + 1, u0] + a * b * img[v0 + 1, u0 + 1])
+    """Bilinear lookup of an (H, W) or (H, W, C) image at sub-pixel (u, v), clamped to the image."""
+    flat = img.reshape(img.shape[0], img.shape[1], -1)
+    out = _bilinear(flat, np.ascontiguousarray(uv, dtype=float))
+    return out if img.ndim == 3 else out[:, 0]
+
+
+@numba.njit(cache=True, nogil=True)
+def _bilinear(img, uv):
+    h, w, c = img.shape
+    out = np.empty((uv.shape[0], c))
+    for i in range(uv.shape[0]):
+        u = min(max(uv[i, 0], 0.0), w - 1.001)
+        v = min(max(uv[i, 1], 0.0), h - 1.001)
+        u0, v0 = int(u), int(v)
+        a, b = u - u0, v - v0
+        for k in range(c):
+            out[i, k] = ((1 - a) * (1 - b) * img[v0, u0, k] + a * (1 - b) * img[v0, u0 + 1, k]
+                         + (1 - a) * b * img[v0 + 1, u0, k] + a * b * img[v0 + 1, u0 + 1, k])
+    return out
+
+
+@dataclass
+class Outline:
+    """The mask whose outline counts (one part's, or the union of the robot's parts) as the contour
+    extraction asks it: which pixels lie deep inside its rendered mask (what is there is passed over),
+    and its image triangles, which the rest is tested against exactly."""
+    deep: np.ndarray  # (H, W) bool: no pixel off the mask within INSIDE_PX
+    inner: np.ndarray  # (H, W) bool: no pixel off the mask among the 8 neighbours
+    triangles: np.ndarray  # (T, 3, 2) image triangles of every part
+
+    @classmethod
+    def of(cls, parts: list, T_cam_parts, K: np.ndarray, shape: tuple[int, int]) -> "Outline":
+        """parts: SilhouetteModel each, placed at T_cam_parts."""
+        tri = np.concatenate([raster.triangles(m.vertices, m.faces, T, K) for m, T in zip(parts, T_cam_parts)])
+        mask = raster.mask(tri, shape).astype(np.uint8)
+        return cls(cv2.erode(mask, _DISK) > 0, cv2.erode(mask, np.ones((3, 3), np.uint8)) > 0, tri)
 
 
 class SilhouetteModel:
-    """The mesh's edges that can be on an occluding contour, and a ray caster for what is in front."""
+    """The mesh's edges that can be on an occluding contour, and its faces for the rasteriser."""
 
-    def __init__(self, mesh: trimesh.Trimesh):
+    def __init__(self, mesh: trimesh.Trimesh, coarse_m: float | None = COARSE_M):
+        # corners that differ only in normals or texture coordinates are one: else every edge of a crease
+        # has one face, counts as a rim and is sampled and probed (most of the Franka hand's 24k edges)
+        mesh = mesh.copy()
+        mesh.merge_vertices(merge_tex=True, merge_norm=True)
         self.mesh = mesh
-        self.rays = RayMeshIntersector(mesh)
+        self.vertices = np.ascontiguousarray(mesh.vertices, dtype=float)
+        self.faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+        # the same shape clustered to a coarse grid, for the refinement's mask IoUs and coarse stages
+        self.coarse = self if coarse_m is None else SilhouetteModel(
+            trimesh.Trimesh(*raster.clustered(self.vertices, self.faces, coarse_m), process=False), None)
         normals = mesh.face_normals
         pairs = mesh.face_adjacency
         # an edge with one face (open meshes) is always a candidate; outward is away from its face
@@ -111,104 +152,34 @@ class SilhouetteModel:
         path = Path(path)
         if not path.is_file():
             raise UserError(f"{path}: no such model; silhouette refinement needs the end-effector's BOP model")
-        mesh = trimesh.load(path, force="mesh")  # processed: vertices merged, so edges know both faces
+        mesh = trimesh.load(path, force="mesh")
         mesh.apply_scale(scale)
         return cls(mesh)
 
     def contour(self, T_cam_ee: np.ndarray, K: np.ndarray, shape: tuple[int, int],
-                step_px: float = 1.0, probe_px: float = 0.3, others: list | None = None) -> np.ndarray:
+                step_px: float = 1.0) -> np.ndarray:
         """Model-frame points on the outer occluding contour of the model seen at `T_cam_ee`, about one
-        per `step_px` of image length. `others`: (SilhouetteModel, T_cam_model) of the robot's other parts;
-        a point counts only where the pixel just outside it misses them too (the union's outline)."""
-        T_ee_cam = inv_T(T_cam_ee)
-        eye = T_ee_cam[:3, 3]
-        rim = np.flatnonzero((self.o1 > self.n1 @ eye) != (self.o2 > self.n2 @ eye))  # one face seen, one not
-        V = self.mesh.vertices
-        a, b = V[self.edges[rim, 0]], V[self.edges[rim, 1]]
-        ca, cb = transform_points(T_cam_ee, a), transform_points(T_cam_ee, b)
-        front = (ca[:, 2] > NEAR_M) & (cb[:, 2] > NEAR_M)  # an arm link may reach behind the camera
-        rim, a, b = rim[front], a[front], b[front]
-        ua, ub = _project(ca[front], K), _project(cb[front], K)
-        # most rims lie inside the silhouette: keep edges that come near the rendered mask's boundary
-        near = cv2.distanceTransform(self.render(T_cam_ee, K, shape).astype(np.uint8), cv2.DIST_L2, 3) <= 2.5
-        near = np.pad(near, 1, constant_values=True)
-        keep = np.zeros(len(rim), bool)
-        for uv in (ua, ub, 0.5 * (ua + ub)):
-            iu = np.clip(np.round(uv[:, 0]).astype(int) + 1, 0, near.shape[1] - 1)
-            iv = np.clip(np.round(uv[:, 1]).astype(int) + 1, 0, near.shape[0] - 1)
-            keep |= near[iv, iu]
-        a, b, ua, ub, normal = a[keep], b[keep], ua[keep], ub[keep], self.outward[rim[keep]]
-        if len(a) == 0:
-            return np.zeros((0, 3))
-        length = np.minimum(np.linalg.norm(ub - ua, axis=1), sum(shape))  # longer edges leave the image
-        n = np.maximum(1, np.ceil(length / step_px)).astype(int)
-        edge = np.repeat(np.arange(len(a)), n)
-        t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / np.repeat(n, n)
-        P = a[edge] + t[:, None] * (b[edge] - a[edge])
-        # the image direction away from the silhouette: the rim's surface normal, projected
-        Pc = transform_points(T_cam_ee, P)
-        u = _project(Pc, K)
-        nrm = normal[edge] / np.maximum(np.linalg.norm(normal[edge], axis=1, keepdims=True), 1e-12)
-        step = _project(Pc + 1e-3 * (nrm @ T_cam_ee[:3, :3].T), K) - u
-        step /= np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-12)
-        h, w = shape
-        probe = u + probe_px * step
-        inside = ((u[:, 0] >= BORDER_PX) & (u[:, 0] <= w - 1 - BORDER_PX)
-                  & (u[:, 1] >= BORDER_PX) & (u[:, 1] <= h - 1 - BORDER_PX) & (Pc[:, 2] > 0))
-        P, probe = P[inside], probe[inside]
-        rays = backproject(probe, np.ones(len(probe)), K) @ T_ee_cam[:3, :3].T
-        hit = self.rays.intersects_any(np.broadcast_to(eye, rays.shape).copy(), rays)
-        P, rays = P[~hit], rays[~hit]
-        for other, T_cam_other in others or ():
-            if not len(P):
-                break
-            T_other_ee = inv_T(T_cam_other) @ T_cam_ee
-            o_eye, o_rays = transform_points(T_other_ee, eye[None])[0], rays @ T_other_ee[:3, :3].T
-            covered = other.rays.intersects_any(np.broadcast_to(o_eye, o_rays.shape).copy(), o_rays)
-            P, rays = P[~covered], rays[~covered]
-        return P
+        per `step_px` of image length."""
+        return PartsSilhouette([self]).contours(T_cam_ee[None], K, shape, step_px)[0]
+
+    def candidates(self, T_cam_ee: np.ndarray, K: np.ndarray, shape: tuple[int, int], step_px: float,
+                   outline: Outline, probe_px: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+        """Model-frame points on rim edges (one face seen, one not) near `outline`, about one per `step_px`
+        of image length, and the image points `probe_px` outside them: a point is on the outline where its
+        probe misses every triangle of the outline's mask. Points deep in the mask, within BORDER_PX of the
+        image border or on an edge nearer the camera than NEAR_M are left out."""
+        return _rim_samples(self.vertices, self.edges, self.n1, self.n2, self.o1, self.o2, self.outward,
+                            np.ascontiguousarray(T_cam_ee, dtype=float), inv_T(T_cam_ee)[:3, 3].copy(),
+                            np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], float), outline.deep, outline.inner,
+                            float(step_px), float(probe_px))
 
     def render(self, T_cam_ee: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """The model's mask at pixel centres (as a one-sample index pass), by ray casting."""
-        mask = np.zeros(shape, bool)
-        cast = self._pixel_rays(T_cam_ee, K, shape)
-        if cast is not None:
-            eye, rays, box = cast
-            mask[box] = self.rays.intersects_any(np.broadcast_to(eye, rays.shape).copy(), rays).reshape(mask[box].shape)
-        return mask
+        """The model's mask at pixel centres (as a one-sample index pass)."""
+        return self.render_depth(T_cam_ee, K, shape) > 0
 
     def render_depth(self, T_cam_ee: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """The model's depth (m along the optical axis, 0 off the model) at pixel centres, by ray casting."""
-        out = np.zeros(shape)
-        cast = self._pixel_rays(T_cam_ee, K, shape)
-        if cast is None:
-            return out
-        eye, rays, box = cast
-        tri = self.rays.intersects_first(np.broadcast_to(eye, rays.shape).copy(), rays)
-        hit = tri >= 0
-        # eye + z * ray (the ray's optical-axis component is 1) meets the hit triangle's plane at depth z
-        n, corner = self.mesh.face_normals[tri[hit]], self.mesh.triangles[tri[hit], 0]
-        z = np.zeros(len(rays))
-        z[hit] = np.sum(n * (corner - eye), 1) / np.sum(n * rays[hit], 1)
-        out[box] = z.reshape(out[box].shape)
-        return out
-
-    def _pixel_rays(self, T_cam_ee: np.ndarray, K: np.ndarray, shape: tuple[int, int]):
-        """Model-frame eye and rays through the pixel centres the bounding sphere may cover, and that box."""
-        h, w = shape
-        centre = T_cam_ee[:3, 3] + T_cam_ee[:3, :3] @ self.mesh.bounds.mean(0)
-        if centre[2] <= self.radius:
-            return None
-        c = _project(centre[None], K)[0]
-        r = self.radius * max(K[0, 0], K[1, 1]) / np.sqrt(centre[2] ** 2 - self.radius ** 2) + 1
-        u0, u1 = max(0, int(c[0] - r)), min(w, int(np.ceil(c[0] + r)) + 1)
-        v0, v1 = max(0, int(c[1] - r)), min(h, int(np.ceil(c[1] + r)) + 1)
-        if u0 >= u1 or v0 >= v1:
-            return None
-        uu, vv = np.meshgrid(np.arange(u0, u1, dtype=float), np.arange(v0, v1, dtype=float))
-        T_ee_cam = inv_T(T_cam_ee)
-        rays = backproject(np.stack([uu.ravel(), vv.ravel()], 1), np.ones(uu.size), K) @ T_ee_cam[:3, :3].T
-        return T_ee_cam[:3, 3], rays, np.s_[v0:v1, u0:u1]
+        """The model's depth (m along the optical axis, 0 off the model) at pixel centres."""
+        return raster.render_depth(self.vertices, self.faces, T_cam_ee, K, shape)
 
 
 class PartsSilhouette:
@@ -218,23 +189,99 @@ class PartsSilhouette:
     def __init__(self, parts: list[SilhouetteModel]):
         self.parts = list(parts)
 
+    @cached_property
+    def coarse(self) -> "PartsSilhouette":
+        return PartsSilhouette([p.coarse for p in self.parts])
+
     def contours(self, T_cam_parts: np.ndarray, K: np.ndarray, shape: tuple[int, int],
                  step_px: float) -> list[np.ndarray]:
         """Each part's model-frame points on the outline of the union of all parts."""
-        placed = list(zip(self.parts, T_cam_parts))
-        return [m.contour(T, K, shape, step_px, others=[o for j, o in enumerate(placed) if j != i])
-                for i, (m, T) in enumerate(placed)]
+        outline = Outline.of(self.parts, T_cam_parts, K, shape)
+        found = [m.candidates(T, K, shape, step_px, outline) for m, T in zip(self.parts, T_cam_parts)]
+        seen = ~raster.covered(outline.triangles, np.concatenate([probe for _, probe in found]), shape)
+        ends = np.cumsum([len(P) for P, _ in found])
+        return [P[seen[end - len(P):end]] for (P, _), end in zip(found, ends)]
 
     def render_depth(self, T_cam_parts: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """The nearest part's depth at each pixel centre (m, 0 off the robot)."""
-        z = np.zeros(shape)
-        for m, T in zip(self.parts, T_cam_parts):
-            zi = m.render_depth(T, K, shape)
-            z = np.where((zi > 0) & ((z == 0) | (zi < z)), zi, z)
-        return z
+        return render_parts(self.parts, T_cam_parts, K, shape)
 
     def motion_px(self, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
         return max(image_motion_px(m, a, b, K) for m, a, b in zip(self.parts, T_a, T_b))
+
+
+@numba.njit(cache=True, nogil=True)
+def _rim_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step_px, probe_px):
+    """SilhouetteModel.candidates in one pass over the edges (two: count, then fill), in scalars: a small
+    array per edge would cost more than the edge's arithmetic."""
+    h, w = deep.shape
+    fx, fy, cx, cy = k[0], k[1], k[2], k[3]
+    P_out, probe_out = np.empty((0, 3)), np.empty((0, 2))
+    for fill in range(2):
+        m = 0
+        for e in range(edges.shape[0]):
+            s1 = o1[e] > n1[e, 0] * eye[0] + n1[e, 1] * eye[1] + n1[e, 2] * eye[2]
+            s2 = o2[e] > n2[e, 0] * eye[0] + n2[e, 1] * eye[1] + n2[e, 2] * eye[2]
+            if s1 == s2:
+                continue
+            i, j = edges[e, 0], edges[e, 1]
+            za = T[2, 0] * V[i, 0] + T[2, 1] * V[i, 1] + T[2, 2] * V[i, 2] + T[2, 3]
+            zb = T[2, 0] * V[j, 0] + T[2, 1] * V[j, 1] + T[2, 2] * V[j, 2] + T[2, 3]
+            if not (za > NEAR_M and zb > NEAR_M):
+                continue
+            ua = fx * (T[0, 0] * V[i, 0] + T[0, 1] * V[i, 1] + T[0, 2] * V[i, 2] + T[0, 3]) / za + cx
+            va = fy * (T[1, 0] * V[i, 0] + T[1, 1] * V[i, 1] + T[1, 2] * V[i, 2] + T[1, 3]) / za + cy
+            ub = fx * (T[0, 0] * V[j, 0] + T[0, 1] * V[j, 1] + T[0, 2] * V[j, 2] + T[0, 3]) / zb + cx
+            vb = fy * (T[1, 0] * V[j, 0] + T[1, 1] * V[j, 1] + T[1, 2] * V[j, 2] + T[1, 3]) / zb + cy
+            if not (_near(deep, ua, va) or _near(deep, ub, vb) or _near(deep, 0.5 * (ua + ub), 0.5 * (va + vb))):
+                continue
+            length = min(np.sqrt((ub - ua) ** 2 + (vb - va) ** 2), h + w)  # longer edges leave the image
+            n = max(1, int(np.ceil(length / step_px)))
+            norm = max(np.sqrt(outward[e, 0] ** 2 + outward[e, 1] ** 2 + outward[e, 2] ** 2), 1e-12)
+            nx, ny, nz = 1e-3 * outward[e, 0] / norm, 1e-3 * outward[e, 1] / norm, 1e-3 * outward[e, 2] / norm
+            tx = T[0, 0] * nx + T[0, 1] * ny + T[0, 2] * nz  # a 1 mm step along the normal, in the camera
+            ty = T[1, 0] * nx + T[1, 1] * ny + T[1, 2] * nz
+            tz = T[2, 0] * nx + T[2, 1] * ny + T[2, 2] * nz
+            for q in range(n):
+                f = (q + 0.5) / n
+                px = V[i, 0] + f * (V[j, 0] - V[i, 0])
+                py = V[i, 1] + f * (V[j, 1] - V[i, 1])
+                pz = V[i, 2] + f * (V[j, 2] - V[i, 2])
+                x = T[0, 0] * px + T[0, 1] * py + T[0, 2] * pz + T[0, 3]
+                y = T[1, 0] * px + T[1, 1] * py + T[1, 2] * pz + T[1, 3]
+                z = T[2, 0] * px + T[2, 1] * py + T[2, 2] * pz + T[2, 3]
+                if z <= 0.0:
+                    continue
+                u, v = fx * x / z + cx, fy * y / z + cy
+                if not (BORDER_PX <= u <= w - 1 - BORDER_PX and BORDER_PX <= v <= h - 1 - BORDER_PX):
+                    continue
+                if not _near(inner, u, v):
+                    continue
+                if fill:  # the probe: the image direction away from the silhouette, the normal projected
+                    du = fx * (x + tx) / (z + tz) + cx - u
+                    dv = fy * (y + ty) / (z + tz) + cy - v
+                    d = max(np.sqrt(du * du + dv * dv), 1e-12)
+                    P_out[m, 0], P_out[m, 1], P_out[m, 2] = px, py, pz
+                    probe_out[m, 0], probe_out[m, 1] = u + probe_px * du / d, v + probe_px * dv / d
+                m += 1
+        if not fill:
+            P_out, probe_out = np.empty((m, 3)), np.empty((m, 2))
+    return P_out, probe_out
+
+
+@numba.njit(cache=True, nogil=True)
+def _near(deep, u, v):
+    """Whether the pixel nearest to (u, v) is not deep inside the mask (off the image: clamped)."""
+    h, w = deep.shape
+    return not deep[min(max(int(np.rint(v)), 0), h - 1), min(max(int(np.rint(u)), 0), w - 1)]
+
+
+def render_parts(parts: list[SilhouetteModel], T_cam_parts, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The nearest part's depth at each pixel centre (m, 0 off every part)."""
+    z = np.zeros(shape)
+    for m, T in zip(parts, T_cam_parts):
+        raster.draw_depth(z, m.vertices, m.faces, T, K)
+    return z
 
 
 def placed(T_cam_base: np.ndarray, T_base_parts: np.ndarray) -> np.ndarray:
@@ -252,22 +299,42 @@ class SilhouetteTerm:
     def __init__(self, base_points: np.ndarray, view: np.ndarray, views: list[MaskView], sigma_px: float):
         order = np.argsort(view, kind="stable")  # each view's points in one slice
         self.base_points, self.view, self.views, self.sigma_px = base_points[order], view[order], views, sigma_px
-        self.K = np.array([[v.K[0, 0], v.K[1, 1], v.K[0, 2], v.K[1, 2]] for v in views])[self.view]
         self.bounds = np.searchsorted(self.view, np.arange(len(views) + 1))
 
     def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        Q = self.base_points @ T_cam_base[:3, :3].T
-        uv, dpi = project(Q + T_cam_base[:3, 3], self.K)
-        f = np.zeros((len(uv), 3))  # distance, d/du, d/dv
+        e, J = np.empty((len(self.view), 1)), np.empty((len(self.view), 1, 6)) if jacobian else np.empty((0, 1, 6))
+        T = np.ascontiguousarray(T_cam_base, dtype=float)
         for v, a, b in zip(self.views, self.bounds[:-1], self.bounds[1:]):
-            if jacobian:
-                f[a:b] = sample(v.field, uv[a:b])
-            else:
-                f[a:b, 0] = sample(v.sdt, uv[a:b])
-        e = f[:, :1] / self.sigma_px
-        if not jacobian:
-            return e, None
-        return e, row_jacobian(Q, np.einsum("ni,nij->nj", f[:, 1:], dpi) / self.sigma_px)
+            _contour_rows(self.base_points[a:b], v.K, T, v.field, self.sigma_px, e[a:b], J[a:b])
+        return e, (J if jacobian else None)
+
+
+@numba.njit(cache=True, nogil=True)
+def _contour_rows(points, K, T, field, sigma, e, J):
+    """SilhouetteTerm's rows for one frame's points: the signed distance at the projection over sigma and,
+    when J has rows, its Jacobian in the left perturbation (optimize.row_jacobian, written out)."""
+    h, w = field.shape[0], field.shape[1]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    for i in range(points.shape[0]):
+        qx = T[0, 0] * points[i, 0] + T[0, 1] * points[i, 1] + T[0, 2] * points[i, 2]
+        qy = T[1, 0] * points[i, 0] + T[1, 1] * points[i, 1] + T[1, 2] * points[i, 2]
+        qz = T[2, 0] * points[i, 0] + T[2, 1] * points[i, 1] + T[2, 2] * points[i, 2]
+        x, y, z = qx + T[0, 3], qy + T[1, 3], max(qz + T[2, 3], 1e-6)
+        u = min(max(fx * x / z + cx, 0.0), w - 1.001)
+        v = min(max(fy * y / z + cy, 0.0), h - 1.001)
+        u0, v0 = int(u), int(v)
+        a, b = u - u0, v - v0
+        f = np.empty(3)
+        for k in range(3 if J.shape[0] else 1):
+            f[k] = ((1 - a) * (1 - b) * field[v0, u0, k] + a * (1 - b) * field[v0, u0 + 1, k]
+                    + (1 - a) * b * field[v0 + 1, u0, k] + a * b * field[v0 + 1, u0 + 1, k])
+        e[i, 0] = f[0] / sigma
+        if J.shape[0]:
+            gx = f[1] * fx / z / sigma  # the field's image gradient through the projection's derivative
+            gy = f[2] * fy / z / sigma
+            gz = -(f[1] * fx * x + f[2] * fy * y) / (z * z) / sigma
+            J[i, 0, 0], J[i, 0, 1], J[i, 0, 2] = qy * gz - qz * gy, qz * gx - qx * gz, qx * gy - qy * gx
+            J[i, 0, 3], J[i, 0, 4], J[i, 0, 5] = gx, gy, gz
 
 
 def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
@@ -291,14 +358,14 @@ def visible_contour(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskVie
                     step_px: float) -> list[np.ndarray]:
     """Each part's model-frame contour points in one frame that nothing in front hides, extracted again only
     when a part has moved more than REUSE_PX in the image since the frame's last extraction."""
-    last = mv.contours.get(step_px)
+    last = mv.contours.get((model, step_px))
     if last is not None and model.motion_px(last[0], T_cam_parts, mv.K) <= REUSE_PX:
         return last[1]
     out = []
     for T_cam_part, P in zip(T_cam_parts, model.contours(T_cam_parts, mv.K, mv.sdt.shape, step_px)):
         Pc = transform_points(T_cam_part, P)
         out.append(P[~mv.occluded(_project(Pc, mv.K), Pc[:, 2])])  # hidden by what stands in front: no evidence
-    mv.contours[step_px] = (T_cam_parts.copy(), out)
+    mv.contours[model, step_px] = (T_cam_parts.copy(), out)
     return out
 
 
@@ -325,19 +392,26 @@ def contour_fit(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tup
 def mean_iou(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
              stride: int = 1) -> float:
     """How well a calibration explains every frame's mask: the mean mask IoU, on every `stride`-th pixel
-    of each row and column (stride 2 ranks poses as well at a quarter of the rays)."""
-    scale = np.diag([1.0 / stride, 1.0 / stride, 1.0])
-    ious = []
-    for T_base_parts, mv in frames:
-        seen = mv.mask[::stride, ::stride]
-        z_model = model.render_depth(placed(T_cam_base, T_base_parts), scale @ mv.K, seen.shape)
-        if mv.depth is None:
-            ious.append(iou(z_model > 0, seen))
-            continue
-        depth = mv.depth[::stride, ::stride]  # model pixels that something nearer covers cannot be judged
-        hidden = (depth > 0) & (depth < z_model - OCCLUDER_MARGIN_M) & ~seen
-        ious.append(iou((z_model > 0) & ~hidden, seen))
-    return float(np.mean(ious))
+    of each row and column (stride 2 ranks poses as well at a quarter of the pixels)."""
+    return float(np.mean([frame_iou(model, placed(T_cam_base, T_base_parts), mv, stride)
+                          for T_base_parts, mv in frames]))
+
+
+def frame_iou(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, stride: int) -> float:
+    """One frame's mask IoU, taken again only when a part has moved more than REUSE_PX in the image since
+    the frame's last (a new key frame moves the calibration a little; the other frames' IoUs stand)."""
+    last = mv.ious.get((model, stride))
+    if last is not None and model.motion_px(last[0], T_cam_parts, mv.K) <= REUSE_PX:
+        return last[1]
+    seen = mv.mask[::stride, ::stride]
+    z_model = (model.coarse if stride > 1 else model).render_depth(
+        T_cam_parts, np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K, seen.shape)
+    drawn = z_model > 0
+    if mv.depth is not None:  # model pixels that something nearer covers cannot be judged
+        depth = mv.depth[::stride, ::stride]
+        drawn &= ~((depth > 0) & (depth < z_model - OCCLUDER_MARGIN_M) & ~seen)
+    mv.ious[model, stride] = (T_cam_parts.copy(), iou(drawn, seen))
+    return mv.ious[model, stride][1]
 
 
 def _project(P: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -1,0 +1,258 @@
+"""A rasteriser for the silhouette refinement, on the CPU: a mesh's depth at pixel centres (a z-buffer),
+and whether sub-pixel image points fall on it.
+
+The refinement renders the model's mask many times per frame (to rank starting poses by mask IoU) and asks,
+for every contour point, whether the image just outside it misses the robot. Casting rays through
+trimesh's Embree binding spends most of its time in per-call and per-ray overhead; the same answers come
+from the projected triangles, scan converted (or binned into image cells) by code that numba compiles.
+Pixel centres sit at integer (u, v), as in OpenCV; depth is interpolated as 1/z, which is linear in the
+image. Triangles are clipped at a near plane, so a part that reaches behind the camera keeps what lies
+in front.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+NEAR_M = 0.01  # the near clipping plane (m)
+CELL_PX = 1  # side of the image cells that `covered` bins triangles into
+
+
+@numba.njit(cache=True, nogil=True)
+def _clip(P, face, poly):
+    """The face's corners in front of z = NEAR_M into `poly` (Sutherland-Hodgman against one plane);
+    returns their number: 0, 3 or 4."""
+    n = 0
+    for k in range(3):
+        p, q = P[face[k]], P[face[(k + 1) % 3]]
+        if p[2] >= NEAR_M:
+            poly[n] = p
+            n += 1
+        if (p[2] >= NEAR_M) != (q[2] >= NEAR_M):
+            if q[2] >= NEAR_M:  # from the corner in front, so the face beside gets the very same point
+                p, q = q, p
+            poly[n] = p + (NEAR_M - p[2]) / (q[2] - p[2]) * (q - p)
+            n += 1
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
+def _pixels(P, fx, fy, cx, cy):
+    uv = np.empty((P.shape[0], 2))
+    for i in range(P.shape[0]):
+        z = max(P[i, 2], NEAR_M)
+        uv[i, 0], uv[i, 1] = fx * P[i, 0] / z + cx, fy * P[i, 1] / z + cy
+    return uv
+
+
+@numba.njit(cache=True, nogil=True)
+def _project(P, faces, fx, fy, cx, cy):
+    """Image triangles (T, 3, 2): a face wholly in front of the near plane stays one triangle, one cut by
+    it becomes one or two (a fan over the clipped polygon)."""
+    uv = _pixels(P, fx, fy, cx, cy)
+    tri = np.empty((2 * faces.shape[0], 3, 2))
+    poly = np.empty((4, 3))
+    m = 0
+    for f in range(faces.shape[0]):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        if P[a, 2] >= NEAR_M and P[b, 2] >= NEAR_M and P[c, 2] >= NEAR_M:
+            for j in range(3):
+                tri[m, j, 0], tri[m, j, 1] = uv[faces[f, j], 0], uv[faces[f, j], 1]
+            m += 1
+            continue
+        n = _clip(P, faces[f], poly)
+        for k in range(1, n - 1):
+            for j, i in enumerate((0, k, k + 1)):
+                tri[m, j, 0] = fx * poly[i, 0] / poly[i, 2] + cx
+                tri[m, j, 1] = fy * poly[i, 1] / poly[i, 2] + cy
+            m += 1
+    return tri[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def _edge(xp, yp, xq, yq, u, v):
+    """Twice the signed area of (p, q, (u, v)). The same edge seen from its other triangle, (q, p), gives
+    exactly the negated value in floating point, so a point on a shared edge belongs to one triangle or
+    both, never to none (no cracks along the diagonals of a mesh)."""
+    return (xp - u) * (yq - v) - (xq - u) * (yp - v)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill(xa, ya, za, xb, yb, zb, xc, yc, zc, out):
+    """One image triangle, its corners' depths given, into the z-buffer `out`."""
+    h, w = out.shape
+    u0 = max(int(np.ceil(min(xa, xb, xc))), 0)
+    u1 = min(int(np.floor(max(xa, xb, xc))), w - 1)
+    if u0 > u1:
+        return  # most triangles of a fine mesh fall between pixel centres
+    v0 = max(int(np.ceil(min(ya, yb, yc))), 0)
+    v1 = min(int(np.floor(max(ya, yb, yc))), h - 1)
+    area = _edge(xa, ya, xb, yb, xc, yc)
+    if v0 > v1 or area == 0.0:
+        return
+    s = 1.0 if area > 0.0 else -1.0
+    for v in range(v0, v1 + 1):
+        for u in range(u0, u1 + 1):
+            ea = s * _edge(xb, yb, xc, yc, u, v)
+            eb = s * _edge(xc, yc, xa, ya, u, v)
+            ec = s * _edge(xa, ya, xb, yb, u, v)
+            if ea < 0.0 or eb < 0.0 or ec < 0.0:
+                continue
+            d = (ea + eb + ec) / (ea / za + eb / zb + ec / zc)
+            if out[v, u] == 0.0 or d < out[v, u]:
+                out[v, u] = d
+
+
+@numba.njit(cache=True, nogil=True)
+def _cover(tri, out):
+    """Image triangles into the mask `out` (pixel centres, edges included)."""
+    h, w = out.shape
+    for i in range(tri.shape[0]):
+        t = tri[i]
+        u0 = max(int(np.ceil(min(t[0, 0], t[1, 0], t[2, 0]))), 0)
+        u1 = min(int(np.floor(max(t[0, 0], t[1, 0], t[2, 0]))), w - 1)
+        v0 = max(int(np.ceil(min(t[0, 1], t[1, 1], t[2, 1]))), 0)
+        v1 = min(int(np.floor(max(t[0, 1], t[1, 1], t[2, 1]))), h - 1)
+        for v in range(v0, v1 + 1):
+            for u in range(u0, u1 + 1):
+                if not out[v, u] and _inside(t, u, v):
+                    out[v, u] = True
+
+
+@numba.njit(cache=True, nogil=True)
+def _zbuffer(P, faces, fx, fy, cx, cy, out):
+    uv = _pixels(P, fx, fy, cx, cy)
+    poly = np.empty((4, 3))
+    for f in range(faces.shape[0]):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        if P[a, 2] >= NEAR_M and P[b, 2] >= NEAR_M and P[c, 2] >= NEAR_M:
+            _fill(uv[a, 0], uv[a, 1], P[a, 2], uv[b, 0], uv[b, 1], P[b, 2], uv[c, 0], uv[c, 1], P[c, 2], out)
+            continue
+        n = _clip(P, faces[f], poly)
+        for k in range(1, n - 1):
+            _fill(fx * poly[0, 0] / poly[0, 2] + cx, fy * poly[0, 1] / poly[0, 2] + cy, poly[0, 2],
+                  fx * poly[k, 0] / poly[k, 2] + cx, fy * poly[k, 1] / poly[k, 2] + cy, poly[k, 2],
+                  fx * poly[k + 1, 0] / poly[k + 1, 2] + cx, fy * poly[k + 1, 1] / poly[k + 1, 2] + cy,
+                  poly[k + 1, 2], out)
+
+
+@numba.njit(cache=True, nogil=True)
+def _inside(t, u, v):
+    """Whether image point (u, v) lies in triangle t (3, 2), edges included; a degenerate one covers nothing."""
+    area = _edge(t[0, 0], t[0, 1], t[1, 0], t[1, 1], t[2, 0], t[2, 1])
+    if area == 0.0:
+        return False
+    s = 1.0 if area > 0.0 else -1.0
+    return (s * _edge(t[1, 0], t[1, 1], t[2, 0], t[2, 1], u, v) >= 0.0
+            and s * _edge(t[2, 0], t[2, 1], t[0, 0], t[0, 1], u, v) >= 0.0
+            and s * _edge(t[0, 0], t[0, 1], t[1, 0], t[1, 1], u, v) >= 0.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _covered(tri, uv, h, w, cell):
+    """For each point, whether a triangle covers it: the triangles that reach an image cell holding a point
+    are binned into those cells (CSR lists), and each point tests its cell's, by bounding box first."""
+    ch, cw = (h + cell - 1) // cell, (w + cell - 1) // cell
+    wanted = np.zeros(ch * cw, np.bool_)
+    for j in range(uv.shape[0]):
+        if 0.0 <= uv[j, 0] < w and 0.0 <= uv[j, 1] < h:
+            wanted[int(uv[j, 1] / cell) * cw + int(uv[j, 0] / cell)] = True
+    box = np.empty((tri.shape[0], 4))
+    cells = np.empty((tri.shape[0], 4), np.int64)  # first and last cell column, first and last row
+    near = np.empty(tri.shape[0], np.int64)  # the triangles that reach a wanted cell
+    count = np.zeros(ch * cw + 1, np.int64)
+    m = 0
+    for i in range(tri.shape[0]):
+        t = tri[i]
+        box[i, 0], box[i, 1] = min(t[0, 0], t[1, 0], t[2, 0]), max(t[0, 0], t[1, 0], t[2, 0])
+        box[i, 2], box[i, 3] = min(t[0, 1], t[1, 1], t[2, 1]), max(t[0, 1], t[1, 1], t[2, 1])
+        if box[i, 1] < 0.0 or box[i, 0] >= w or box[i, 3] < 0.0 or box[i, 2] >= h:
+            continue
+        cells[i, 0], cells[i, 1] = int(max(box[i, 0], 0.0) / cell), min(int(box[i, 1] / cell), cw - 1)
+        cells[i, 2], cells[i, 3] = int(max(box[i, 2], 0.0) / cell), min(int(box[i, 3] / cell), ch - 1)
+        reaches = False
+        for cv in range(cells[i, 2], cells[i, 3] + 1):
+            for cu in range(cells[i, 0], cells[i, 1] + 1):
+                if wanted[cv * cw + cu]:
+                    count[cv * cw + cu + 1] += 1
+                    reaches = True
+        if reaches:
+            near[m] = i
+            m += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    ids = np.empty(start[-1], np.int64)
+    for i in near[:m]:
+        for cv in range(cells[i, 2], cells[i, 3] + 1):
+            for cu in range(cells[i, 0], cells[i, 1] + 1):
+                c = cv * cw + cu
+                if wanted[c]:
+                    ids[fill[c]] = i
+                    fill[c] += 1
+    out = np.zeros(uv.shape[0], np.bool_)
+    for j in range(uv.shape[0]):
+        u, v = uv[j, 0], uv[j, 1]
+        if not (0.0 <= u < w and 0.0 <= v < h):
+            continue
+        c = int(v / cell) * cw + int(u / cell)
+        for k in range(start[c], start[c + 1]):
+            i = ids[k]
+            if box[i, 0] <= u <= box[i, 1] and box[i, 2] <= v <= box[i, 3] and _inside(tri[i], u, v):
+                out[j] = True
+                break
+    return out
+
+
+def clustered(vertices: np.ndarray, faces: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A coarse copy of a mesh by vertex clustering (Rossignac and Borrel 1993): the vertices in each
+    `cell_m` cube become their mean, faces that collapse go. Its outline stays within a cell of the
+    original's, and it holds as few faces as the cells the surface crosses allow."""
+    _, group, count = np.unique(np.floor(vertices / cell_m).astype(np.int64), axis=0, return_inverse=True,
+                                return_counts=True)
+    group = group.ravel()
+    merged = np.zeros((len(count), 3))
+    np.add.at(merged, group, vertices)
+    merged /= count[:, None]
+    f = group[faces]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    _, first = np.unique(np.sort(f, 1), axis=0, return_index=True)  # one face per corner set, winding kept
+    return merged, np.ascontiguousarray(f[np.sort(first)])
+
+
+def _camera(vertices: np.ndarray, T_cam_model: np.ndarray) -> np.ndarray:
+    return vertices @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+
+
+def triangles(vertices: np.ndarray, faces: np.ndarray, T_cam_model: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """The mesh (model-frame vertices in metres, faces int64) seen at `T_cam_model`: image triangles
+    (T, 3, 2), clipped at the near plane."""
+    return _project(_camera(vertices, T_cam_model), faces, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
+                    float(K[1, 2]))
+
+
+def draw_depth(out: np.ndarray, vertices: np.ndarray, faces: np.ndarray, T_cam_model: np.ndarray,
+               K: np.ndarray) -> np.ndarray:
+    """Draws the mesh seen at `T_cam_model` into the depth image `out` (H, W) where it is nearer than
+    what `out` holds (0: nothing drawn yet); returns `out`."""
+    _zbuffer(_camera(vertices, T_cam_model), faces, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
+             float(K[1, 2]), out)
+    return out
+
+
+def mask(tri: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The pixel centres that image triangles (T, 3, 2) cover."""
+    out = np.zeros(shape, bool)
+    _cover(np.ascontiguousarray(tri), out)
+    return out
+
+
+def render_depth(vertices: np.ndarray, faces: np.ndarray, T_cam_model: np.ndarray, K: np.ndarray,
+                 shape: tuple[int, int]) -> np.ndarray:
+    """The mesh's depth at pixel centres (m along the optical axis, 0 off the mesh)."""
+    return draw_depth(np.zeros(shape), vertices, faces, T_cam_model, K)
+
+
+def covered(tri: np.ndarray, uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Which image points (sub-pixel, not pixel centres; inside the image) the image triangles cover."""
+    return _covered(np.ascontiguousarray(tri), np.ascontiguousarray(uv, dtype=float), shape[0], shape[1], CELL_PX)
