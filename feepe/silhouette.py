@@ -76,28 +76,6 @@ def mask_view(mask: np.ndarray, K: np.ndarray, depth: np.ndarray | None = None) 
                     None if depth is None else np.asarray(depth, float))
 
 
-def sample(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of an (H, W) or (H, W, C) image at sub-pixel (u, v), clamped to the image."""
-    flat = img.reshape(img.shape[0], img.shape[1], -1)
-    out = _bilinear(flat, np.ascontiguousarray(uv, dtype=float))
-    return out if img.ndim == 3 else out[:, 0]
-
-
-@numba.njit(cache=True, nogil=True)
-def _bilinear(img, uv):
-    h, w, c = img.shape
-    out = np.empty((uv.shape[0], c))
-    for i in range(uv.shape[0]):
-        u = min(max(uv[i, 0], 0.0), w - 1.001)
-        v = min(max(uv[i, 1], 0.0), h - 1.001)
-        u0, v0 = int(u), int(v)
-        a, b = u - u0, v - v0
-        for k in range(c):
-            out[i, k] = ((1 - a) * (1 - b) * img[v0, u0, k] + a * (1 - b) * img[v0, u0 + 1, k]
-                         + (1 - a) * b * img[v0 + 1, u0, k] + a * b * img[v0 + 1, u0 + 1, k])
-    return out
-
-
 @dataclass
 class Outline:
     """The mask whose outline counts (one part's, or the union of the robot's parts) as the contour

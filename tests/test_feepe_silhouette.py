@@ -13,13 +13,23 @@ from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
 from feepe.optimize import _step
 from feepe.silhouette import (REUSE_PX, PartsSilhouette, SilhouetteModel, SilhouetteTerm, contour_term, image_motion_px,
-                              mask_view, mean_iou, sample, visible_contour)
+                              mask_view, mean_iou, visible_contour)
 from kernel.bop import read_frame, read_scene, split_dir
 from kernel.errors import UserError
 from kernel.template_set import find_template_set
 from kernel.transforms import inv_T, transform_points
 
 K = np.array([[300.0, 0, 80], [0, 300.0, 60], [0, 0, 1]])
+
+
+def sample(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of an (H, W) image at sub-pixel (u, v), clamped to the image."""
+    h, w = img.shape
+    u, v = np.clip(uv[:, 0], 0, w - 1.001), np.clip(uv[:, 1], 0, h - 1.001)
+    u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
+    a, b = u - u0, v - v0
+    return ((1 - a) * (1 - b) * img[v0, u0] + a * (1 - b) * img[v0, u0 + 1]
+            + (1 - a) * b * img[v0 + 1, u0] + a * b * img[v0 + 1, u0 + 1])
 
 
 def _box_pose():
