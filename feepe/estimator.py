@@ -33,6 +33,7 @@ VARIANTS = ("A", "B", "C", "D")
 REFINEMENTS = ("none", "silhouette", "silhouette+depth")
 SILHOUETTES = ("ee", "robot")
 IOU_STRIDE = 2  # the refinement's decisions compare mask IoUs on every second pixel
+RENDERER = "zbuffer"  # how the refinement renders masks and tests outlines (feepe/raster.py; before: Embree rays)
 MIN_DECREASE = 1e-6  # the refinement's solves stop once a step promises less than this fraction of the cost
 # The optimisation and the refinement multiply many small matrices (normal equations of N x 6 Jacobians,
 # N x 3 points by 3 x 3 rotations). OpenBLAS's threads cost more than they save there: a 10000 x 6 normal
@@ -146,6 +147,8 @@ def describe(opts: FeepeOptions, backbone) -> dict:
         out.pop("robot_start_frames")
     if not opts.silhouette_refit_growth:  # as runs before the option existed
         out.pop("silhouette_refit_growth")
+    if opts.refine != "none":  # the refinement's estimates changed with the rasteriser (results.md, sixth
+        out["silhouette_renderer"] = RENDERER  # step): a run stored before it is not resumed by this code
     return {**out, "backbone": backbone.options()}
 
 

@@ -148,6 +148,8 @@ def test_paper_variants_keep_their_identity_and_options_are_checked():
     assert "robot_start_frames" not in ee and "silhouette_refit_growth" not in ee
     robot = describe(FeepeOptions(refine="silhouette", silhouette="robot", silhouette_refit_growth=0.25), net)
     assert robot["robot_start_frames"] == 3 and robot["silhouette_refit_growth"] == 0.25
+    # refinement runs from before the rasteriser (no renderer named) are not resumed; the paper's variants are
+    assert ee["silhouette_renderer"] == "zbuffer" and "silhouette_renderer" not in describe(FeepeOptions(), net)
 
 
 @pytest.mark.parametrize("refine", ["silhouette", "silhouette+depth"])
