@@ -7,7 +7,7 @@ trimesh's Embree binding spends most of its time in per-call and per-ray overhea
 from the projected triangles, scan converted (or binned into image cells) by code that numba compiles.
 Pixel centres sit at integer (u, v), as in OpenCV; depth is interpolated as 1/z, which is linear in the
 image. Triangles are clipped at a near plane, so a part that reaches behind the camera keeps what lies
-in front.
+in front. `clustered` makes the coarse copy of a mesh that the refinement's coarse stages render.
 """
 
 from __future__ import annotations
