@@ -48,17 +48,17 @@ def _pixels(P, fx, fy, cx, cy):
 
 @numba.njit(cache=True, nogil=True)
 def _project(P, faces, fx, fy, cx, cy):
-    """Image triangles (T, 3, 2): a face wholly in front of the near plane stays one triangle, one cut by
-    it becomes one or two (a fan over the clipped polygon)."""
+    """Image triangles (T, 3, 2) and their corners' depths (T, 3): a face wholly in front of the near plane
+    stays one triangle, one cut by it becomes one or two (a fan over the clipped polygon)."""
     uv = _pixels(P, fx, fy, cx, cy)
-    tri = np.empty((2 * faces.shape[0], 3, 2))
+    tri, tz = np.empty((2 * faces.shape[0], 3, 2)), np.empty((2 * faces.shape[0], 3))
     poly = np.empty((4, 3))
     m = 0
     for f in range(faces.shape[0]):
         a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
         if P[a, 2] >= NEAR_M and P[b, 2] >= NEAR_M and P[c, 2] >= NEAR_M:
             for j in range(3):
-                tri[m, j, 0], tri[m, j, 1] = uv[faces[f, j], 0], uv[faces[f, j], 1]
+                tri[m, j, 0], tri[m, j, 1], tz[m, j] = uv[faces[f, j], 0], uv[faces[f, j], 1], P[faces[f, j], 2]
             m += 1
             continue
         n = _clip(P, faces[f], poly)
@@ -66,8 +66,9 @@ def _project(P, faces, fx, fy, cx, cy):
             for j, i in enumerate((0, k, k + 1)):
                 tri[m, j, 0] = fx * poly[i, 0] / poly[i, 2] + cx
                 tri[m, j, 1] = fy * poly[i, 1] / poly[i, 2] + cy
+                tz[m, j] = poly[i, 2]
             m += 1
-    return tri[:m]
+    return tri[:m], tz[:m]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -79,29 +80,46 @@ def _edge(xp, yp, xq, yq, u, v):
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill(xa, ya, za, xb, yb, zb, xc, yc, zc, out):
-    """One image triangle, its corners' depths given, into the z-buffer `out`."""
-    h, w = out.shape
-    u0 = max(int(np.ceil(min(xa, xb, xc))), 0)
-    u1 = min(int(np.floor(max(xa, xb, xc))), w - 1)
-    if u0 > u1:
-        return  # most triangles of a fine mesh fall between pixel centres
-    v0 = max(int(np.ceil(min(ya, yb, yc))), 0)
-    v1 = min(int(np.floor(max(ya, yb, yc))), h - 1)
-    area = _edge(xa, ya, xb, yb, xc, yc)
-    if v0 > v1 or area == 0.0:
-        return
+def _weights(t, u, v):
+    """The edge functions of image point (u, v) in triangle t (3, 2), signed so that all three are >= 0
+    inside (edges included) and summing to twice its area; a degenerate triangle gives -1s."""
+    area = _edge(t[0, 0], t[0, 1], t[1, 0], t[1, 1], t[2, 0], t[2, 1])
+    if area == 0.0:
+        return -1.0, -1.0, -1.0
     s = 1.0 if area > 0.0 else -1.0
-    for v in range(v0, v1 + 1):
-        for u in range(u0, u1 + 1):
-            ea = s * _edge(xb, yb, xc, yc, u, v)
-            eb = s * _edge(xc, yc, xa, ya, u, v)
-            ec = s * _edge(xa, ya, xb, yb, u, v)
-            if ea < 0.0 or eb < 0.0 or ec < 0.0:
-                continue
-            d = (ea + eb + ec) / (ea / za + eb / zb + ec / zc)
-            if out[v, u] == 0.0 or d < out[v, u]:
-                out[v, u] = d
+    return (s * _edge(t[1, 0], t[1, 1], t[2, 0], t[2, 1], u, v), s * _edge(t[2, 0], t[2, 1], t[0, 0], t[0, 1], u, v),
+            s * _edge(t[0, 0], t[0, 1], t[1, 0], t[1, 1], u, v))
+
+
+@numba.njit(cache=True, nogil=True)
+def _inside(t, u, v):
+    """Whether image point (u, v) lies in triangle t (3, 2), edges included; a degenerate one covers nothing."""
+    wa, wb, wc = _weights(t, u, v)
+    return wa >= 0.0 and wb >= 0.0 and wc >= 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _pixel_box(t, h, w):
+    """The pixel centres a triangle's bounding box holds: first and last column, first and last row."""
+    u0, u1 = np.ceil(min(t[0, 0], t[1, 0], t[2, 0])), np.floor(max(t[0, 0], t[1, 0], t[2, 0]))
+    v0, v1 = np.ceil(min(t[0, 1], t[1, 1], t[2, 1])), np.floor(max(t[0, 1], t[1, 1], t[2, 1]))
+    return max(int(u0), 0), min(int(u1), w - 1), max(int(v0), 0), min(int(v1), h - 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _zbuffer(tri, tz, out):
+    """Image triangles with their corners' depths into the depth image `out`, nearest kept (0: empty)."""
+    h, w = out.shape
+    for i in range(tri.shape[0]):
+        u0, u1, v0, v1 = _pixel_box(tri[i], h, w)
+        for v in range(v0, v1 + 1):  # most triangles of a fine mesh hold no pixel centre
+            for u in range(u0, u1 + 1):
+                wa, wb, wc = _weights(tri[i], u, v)
+                if wa < 0.0 or wb < 0.0 or wc < 0.0:
+                    continue
+                d = (wa + wb + wc) / (wa / tz[i, 0] + wb / tz[i, 1] + wc / tz[i, 2])
+                if out[v, u] == 0.0 or d < out[v, u]:
+                    out[v, u] = d
 
 
 @numba.njit(cache=True, nogil=True)
@@ -109,44 +127,11 @@ def _cover(tri, out):
     """Image triangles into the mask `out` (pixel centres, edges included)."""
     h, w = out.shape
     for i in range(tri.shape[0]):
-        t = tri[i]
-        u0 = max(int(np.ceil(min(t[0, 0], t[1, 0], t[2, 0]))), 0)
-        u1 = min(int(np.floor(max(t[0, 0], t[1, 0], t[2, 0]))), w - 1)
-        v0 = max(int(np.ceil(min(t[0, 1], t[1, 1], t[2, 1]))), 0)
-        v1 = min(int(np.floor(max(t[0, 1], t[1, 1], t[2, 1]))), h - 1)
+        u0, u1, v0, v1 = _pixel_box(tri[i], h, w)
         for v in range(v0, v1 + 1):
             for u in range(u0, u1 + 1):
-                if not out[v, u] and _inside(t, u, v):
+                if not out[v, u] and _inside(tri[i], u, v):
                     out[v, u] = True
-
-
-@numba.njit(cache=True, nogil=True)
-def _zbuffer(P, faces, fx, fy, cx, cy, out):
-    uv = _pixels(P, fx, fy, cx, cy)
-    poly = np.empty((4, 3))
-    for f in range(faces.shape[0]):
-        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-        if P[a, 2] >= NEAR_M and P[b, 2] >= NEAR_M and P[c, 2] >= NEAR_M:
-            _fill(uv[a, 0], uv[a, 1], P[a, 2], uv[b, 0], uv[b, 1], P[b, 2], uv[c, 0], uv[c, 1], P[c, 2], out)
-            continue
-        n = _clip(P, faces[f], poly)
-        for k in range(1, n - 1):
-            _fill(fx * poly[0, 0] / poly[0, 2] + cx, fy * poly[0, 1] / poly[0, 2] + cy, poly[0, 2],
-                  fx * poly[k, 0] / poly[k, 2] + cx, fy * poly[k, 1] / poly[k, 2] + cy, poly[k, 2],
-                  fx * poly[k + 1, 0] / poly[k + 1, 2] + cx, fy * poly[k + 1, 1] / poly[k + 1, 2] + cy,
-                  poly[k + 1, 2], out)
-
-
-@numba.njit(cache=True, nogil=True)
-def _inside(t, u, v):
-    """Whether image point (u, v) lies in triangle t (3, 2), edges included; a degenerate one covers nothing."""
-    area = _edge(t[0, 0], t[0, 1], t[1, 0], t[1, 1], t[2, 0], t[2, 1])
-    if area == 0.0:
-        return False
-    s = 1.0 if area > 0.0 else -1.0
-    return (s * _edge(t[1, 0], t[1, 1], t[2, 0], t[2, 1], u, v) >= 0.0
-            and s * _edge(t[2, 0], t[2, 1], t[0, 0], t[0, 1], u, v) >= 0.0
-            and s * _edge(t[0, 0], t[0, 1], t[1, 0], t[1, 1], u, v) >= 0.0)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -220,23 +205,19 @@ def clustered(vertices: np.ndarray, faces: np.ndarray, cell_m: float) -> tuple[n
     return merged, np.ascontiguousarray(f[np.sort(first)])
 
 
-def _camera(vertices: np.ndarray, T_cam_model: np.ndarray) -> np.ndarray:
-    return vertices @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
-
-
-def triangles(vertices: np.ndarray, faces: np.ndarray, T_cam_model: np.ndarray, K: np.ndarray) -> np.ndarray:
+def triangles(vertices: np.ndarray, faces: np.ndarray, T_cam_model: np.ndarray,
+              K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The mesh (model-frame vertices in metres, faces int64) seen at `T_cam_model`: image triangles
-    (T, 3, 2), clipped at the near plane."""
-    return _project(_camera(vertices, T_cam_model), faces, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
-                    float(K[1, 2]))
+    (T, 3, 2) and their corners' depths (T, 3), clipped at the near plane."""
+    P = vertices @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    return _project(P, faces, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
 
 
 def draw_depth(out: np.ndarray, vertices: np.ndarray, faces: np.ndarray, T_cam_model: np.ndarray,
                K: np.ndarray) -> np.ndarray:
     """Draws the mesh seen at `T_cam_model` into the depth image `out` (H, W) where it is nearer than
     what `out` holds (0: nothing drawn yet); returns `out`."""
-    _zbuffer(_camera(vertices, T_cam_model), faces, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
-             float(K[1, 2]), out)
+    _zbuffer(*triangles(vertices, faces, T_cam_model, K), out)
     return out
 
 

@@ -88,7 +88,7 @@ class Outline:
     @classmethod
     def of(cls, parts: list, T_cam_parts, K: np.ndarray, shape: tuple[int, int]) -> "Outline":
         """parts: SilhouetteModel each, placed at T_cam_parts."""
-        tri = np.concatenate([raster.triangles(m.vertices, m.faces, T, K) for m, T in zip(parts, T_cam_parts)])
+        tri = np.concatenate([raster.triangles(m.vertices, m.faces, T, K)[0] for m, T in zip(parts, T_cam_parts)])
         mask = raster.mask(tri, shape).astype(np.uint8)
         return cls(cv2.erode(mask, _DISK) > 0, cv2.erode(mask, np.ones((3, 3), np.uint8)) > 0, tri)
 
@@ -182,7 +182,10 @@ class PartsSilhouette:
 
     def render_depth(self, T_cam_parts: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """The nearest part's depth at each pixel centre (m, 0 off the robot)."""
-        return render_parts(self.parts, T_cam_parts, K, shape)
+        z = np.zeros(shape)
+        for m, T in zip(self.parts, T_cam_parts):
+            raster.draw_depth(z, m.vertices, m.faces, T, K)
+        return z
 
     def motion_px(self, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
         return max(image_motion_px(m, a, b, K) for m, a, b in zip(self.parts, T_a, T_b))
@@ -203,31 +206,24 @@ def _rim_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step
             if s1 == s2:
                 continue
             i, j = edges[e, 0], edges[e, 1]
-            za = T[2, 0] * V[i, 0] + T[2, 1] * V[i, 1] + T[2, 2] * V[i, 2] + T[2, 3]
-            zb = T[2, 0] * V[j, 0] + T[2, 1] * V[j, 1] + T[2, 2] * V[j, 2] + T[2, 3]
+            xa, ya, za = _to_camera(T, V[i, 0], V[i, 1], V[i, 2])
+            xb, yb, zb = _to_camera(T, V[j, 0], V[j, 1], V[j, 2])
             if not (za > NEAR_M and zb > NEAR_M):
                 continue
-            ua = fx * (T[0, 0] * V[i, 0] + T[0, 1] * V[i, 1] + T[0, 2] * V[i, 2] + T[0, 3]) / za + cx
-            va = fy * (T[1, 0] * V[i, 0] + T[1, 1] * V[i, 1] + T[1, 2] * V[i, 2] + T[1, 3]) / za + cy
-            ub = fx * (T[0, 0] * V[j, 0] + T[0, 1] * V[j, 1] + T[0, 2] * V[j, 2] + T[0, 3]) / zb + cx
-            vb = fy * (T[1, 0] * V[j, 0] + T[1, 1] * V[j, 1] + T[1, 2] * V[j, 2] + T[1, 3]) / zb + cy
+            ua, va, ub, vb = fx * xa / za + cx, fy * ya / za + cy, fx * xb / zb + cx, fy * yb / zb + cy
             if not (_near(deep, ua, va) or _near(deep, ub, vb) or _near(deep, 0.5 * (ua + ub), 0.5 * (va + vb))):
                 continue
             length = min(np.sqrt((ub - ua) ** 2 + (vb - va) ** 2), h + w)  # longer edges leave the image
             n = max(1, int(np.ceil(length / step_px)))
             norm = max(np.sqrt(outward[e, 0] ** 2 + outward[e, 1] ** 2 + outward[e, 2] ** 2), 1e-12)
             nx, ny, nz = 1e-3 * outward[e, 0] / norm, 1e-3 * outward[e, 1] / norm, 1e-3 * outward[e, 2] / norm
-            tx = T[0, 0] * nx + T[0, 1] * ny + T[0, 2] * nz  # a 1 mm step along the normal, in the camera
-            ty = T[1, 0] * nx + T[1, 1] * ny + T[1, 2] * nz
-            tz = T[2, 0] * nx + T[2, 1] * ny + T[2, 2] * nz
+            tx, ty, tz = _to_camera(T, nx, ny, nz, 0.0)  # a 1 mm step along the normal, turned into the camera
             for q in range(n):
                 f = (q + 0.5) / n
                 px = V[i, 0] + f * (V[j, 0] - V[i, 0])
                 py = V[i, 1] + f * (V[j, 1] - V[i, 1])
                 pz = V[i, 2] + f * (V[j, 2] - V[i, 2])
-                x = T[0, 0] * px + T[0, 1] * py + T[0, 2] * pz + T[0, 3]
-                y = T[1, 0] * px + T[1, 1] * py + T[1, 2] * pz + T[1, 3]
-                z = T[2, 0] * px + T[2, 1] * py + T[2, 2] * pz + T[2, 3]
+                x, y, z = _to_camera(T, px, py, pz)
                 if z <= 0.0:
                     continue
                 u, v = fx * x / z + cx, fy * y / z + cy
@@ -248,18 +244,18 @@ def _rim_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step
 
 
 @numba.njit(cache=True, nogil=True)
+def _to_camera(T, x, y, z, w=1.0):
+    """T @ (x, y, z, w)[:3] in scalars (w = 0 turns a direction)."""
+    return (T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + w * T[0, 3],
+            T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + w * T[1, 3],
+            T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + w * T[2, 3])
+
+
+@numba.njit(cache=True, nogil=True)
 def _near(deep, u, v):
     """Whether the pixel nearest to (u, v) is not deep inside the mask (off the image: clamped)."""
     h, w = deep.shape
     return not deep[min(max(int(np.rint(v)), 0), h - 1), min(max(int(np.rint(u)), 0), w - 1)]
-
-
-def render_parts(parts: list[SilhouetteModel], T_cam_parts, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """The nearest part's depth at each pixel centre (m, 0 off every part)."""
-    z = np.zeros(shape)
-    for m, T in zip(parts, T_cam_parts):
-        raster.draw_depth(z, m.vertices, m.faces, T, K)
-    return z
 
 
 def placed(T_cam_base: np.ndarray, T_base_parts: np.ndarray) -> np.ndarray:
@@ -334,17 +330,25 @@ def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tu
 
 def visible_contour(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView,
                     step_px: float) -> list[np.ndarray]:
-    """Each part's model-frame contour points in one frame that nothing in front hides, extracted again only
-    when a part has moved more than REUSE_PX in the image since the frame's last extraction."""
-    last = mv.contours.get((model, step_px))
-    if last is not None and model.motion_px(last[0], T_cam_parts, mv.K) <= REUSE_PX:
+    """Each part's model-frame contour points in one frame that nothing in front hides."""
+    def extract() -> list[np.ndarray]:
+        out = []
+        for T_cam_part, P in zip(T_cam_parts, model.contours(T_cam_parts, mv.K, mv.sdt.shape, step_px)):
+            Pc = transform_points(T_cam_part, P)
+            out.append(P[~mv.occluded(_project(Pc, mv.K), Pc[:, 2])])  # hidden by what stands in front: no evidence
+        return out
+
+    return _reused(mv.contours, (model, step_px), model, T_cam_parts, mv.K, extract)
+
+
+def _reused(store: dict, key, model: PartsSilhouette, T_cam_parts: np.ndarray, K: np.ndarray, compute):
+    """A frame's stored (T_cam_parts, value) under `key`, computed again only when a part has moved more than
+    REUSE_PX in the image since (a new key frame moves the calibration a little; the other frames' stand)."""
+    last = store.get(key)
+    if last is not None and model.motion_px(last[0], T_cam_parts, K) <= REUSE_PX:
         return last[1]
-    out = []
-    for T_cam_part, P in zip(T_cam_parts, model.contours(T_cam_parts, mv.K, mv.sdt.shape, step_px)):
-        Pc = transform_points(T_cam_part, P)
-        out.append(P[~mv.occluded(_project(Pc, mv.K), Pc[:, 2])])  # hidden by what stands in front: no evidence
-    mv.contours[model, step_px] = (T_cam_parts.copy(), out)
-    return out
+    store[key] = (T_cam_parts.copy(), compute())
+    return store[key][1]
 
 
 def image_motion_px(model: SilhouetteModel, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
@@ -376,20 +380,18 @@ def mean_iou(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[
 
 
 def frame_iou(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, stride: int) -> float:
-    """One frame's mask IoU, taken again only when a part has moved more than REUSE_PX in the image since
-    the frame's last (a new key frame moves the calibration a little; the other frames' IoUs stand)."""
-    last = mv.ious.get((model, stride))
-    if last is not None and model.motion_px(last[0], T_cam_parts, mv.K) <= REUSE_PX:
-        return last[1]
-    seen = mv.mask[::stride, ::stride]
-    z_model = (model.coarse if stride > 1 else model).render_depth(
-        T_cam_parts, np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K, seen.shape)
-    drawn = z_model > 0
-    if mv.depth is not None:  # model pixels that something nearer covers cannot be judged
-        depth = mv.depth[::stride, ::stride]
-        drawn &= ~((depth > 0) & (depth < z_model - OCCLUDER_MARGIN_M) & ~seen)
-    mv.ious[model, stride] = (T_cam_parts.copy(), iou(drawn, seen))
-    return mv.ious[model, stride][1]
+    """One frame's mask IoU on every `stride`-th pixel, stored like its contour (`_reused`)."""
+    def measure() -> float:
+        seen = mv.mask[::stride, ::stride]
+        z_model = (model.coarse if stride > 1 else model).render_depth(
+            T_cam_parts, np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K, seen.shape)
+        drawn = z_model > 0
+        if mv.depth is not None:  # model pixels that something nearer covers cannot be judged
+            depth = mv.depth[::stride, ::stride]
+            drawn &= ~((depth > 0) & (depth < z_model - OCCLUDER_MARGIN_M) & ~seen)
+        return iou(drawn, seen)
+
+    return _reused(mv.ious, (model, stride), model, T_cam_parts, mv.K, measure)
 
 
 def _project(P: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -15,7 +15,6 @@ from syneepose.templates import INPLANE_BY
 
 MAX_WORKERS = 64
 MAX_THREADS = 1024
-THREADS_HELP = "Cycles threads per job (default: every core locally; 1 per Ray task, which asks Ray for as many CPUs)"
 
 
 def _assets(args) -> None:
@@ -271,6 +270,17 @@ def _show(args) -> None:
     print(f"show: {len(sheet.tiles)} configurations in {out}; {len(written) - 1} template sheets beside it")
 
 
+def _add_execution(p: argparse.ArgumentParser) -> None:
+    """Where and how a rendering command runs its jobs: the same options for render, templates and dataset."""
+    p.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
+    p.add_argument("--executor", choices=["local", "ray"], default="local")
+    p.add_argument("--ray-address",
+                   help="HOST:PORT of a running Ray cluster, or auto on its head (default: start a local one)")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--threads", type=int, help="Cycles threads per job (default: every core locally; 1 per Ray task, "
+                   "which asks Ray for as many CPUs)")
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m syneepose", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -290,7 +300,6 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--samples", type=int, help="Cycles samples per pixel (preset default)")
     r.add_argument("--backgrounds", help="folder of images to put on walls at random")
     r.add_argument("--shard", help="i/N: render every N-th segment starting at i (cluster job arrays)")
-    r.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
     r.add_argument("--marker", action="store_true",
                    help="bolt a ChArUco board to the end-effector (marker hand-eye segments; same scenes otherwise)")
     r.add_argument("--depth", choices=["exact", "stereo", "both"], default="exact",
@@ -299,10 +308,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--sensor", default="d435", help="sensor profile for --depth stereo|both (scenes/sensors/ or YAML)")
     r.add_argument("--overwrite", action="store_true",
                    help="render this run's scenes again from scratch (a rerun with other settings is refused without it)")
-    r.add_argument("--executor", choices=["local", "ray"], default="local")
-    r.add_argument("--ray-address", help="HOST:PORT of a running Ray cluster, or auto on its head (default: start a local one)")
-    r.add_argument("--workers", type=int, default=1, help="local worker processes (Cycles uses all cores)")
-    r.add_argument("--threads", type=int, help=THREADS_HELP)
+    _add_execution(r)
     r.set_defaults(func=_render)
     t = sub.add_parser("templates", help="render the FEEPE templates of end-effectors")
     t.add_argument("--out", required=True, help="data set root (templates go to <out>/templates/)")
@@ -312,13 +318,9 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--inplane", type=int, help="in-plane rotations per view (paper: 12)")
     t.add_argument("--resolution", type=int, help="square image size in pixels")
     t.add_argument("--samples", type=int, help="Cycles samples per pixel")
-    t.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
     t.add_argument("--inplane-by", choices=INPLANE_BY, default="rotated",
                    help="in-plane rotations rolled from each view's one render (default), or each rendered")
-    t.add_argument("--executor", choices=["local", "ray"], default="local")
-    t.add_argument("--ray-address", help="HOST:PORT of a running Ray cluster, or auto on its head (default: start a local one)")
-    t.add_argument("--workers", type=int, default=1, help="local worker processes")
-    t.add_argument("--threads", type=int, help=THREADS_HELP)
+    _add_execution(t)
     t.set_defaults(func=_templates)
     s = sub.add_parser("show", help="contact sheet of a data set and a sheet per template set (PNG)")
     s.add_argument("dataset", help="data set root (python -m syneepose render --out DIR)")
@@ -333,11 +335,7 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--robots", help="comma-separated ARM+EE configurations (default: all 18); templates for their "
                    "end-effectors")
-    d.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
-    d.add_argument("--executor", choices=["local", "ray"], default="local")
-    d.add_argument("--ray-address", help="HOST:PORT of a running Ray cluster, or auto on its head (default: start a local one)")
-    d.add_argument("--workers", type=int, default=1, help="local worker processes")
-    d.add_argument("--threads", type=int, help=THREADS_HELP)
+    _add_execution(d)
     d.set_defaults(func=_dataset)
     return parser
 

@@ -56,7 +56,7 @@ def test_coverage_equals_ray_casting_at_sub_pixel_points():
         v, u = np.nonzero(depth > 0)
         uv = np.stack([u, v], 1) + rng.uniform(-3, 3, (len(u), 2))  # in, out and across the outline
         uv = uv[(uv >= 0).all(1) & (uv < SHAPE[::-1]).all(1)]  # beyond the image nothing is binned
-        covered = raster.covered(raster.triangles(vertices, faces, T, K), uv, SHAPE)
+        covered = raster.covered(raster.triangles(vertices, faces, T, K)[0], uv, SHAPE)
         hit = _cast(mesh, T, uv) > 0
         assert covered.sum() > 100 and (~covered).sum() > 50
         assert (covered == hit).all()
@@ -75,4 +75,4 @@ def test_the_mask_of_image_triangles_is_the_z_buffers():
     for mesh, T in _meshes():
         vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
         depth = raster.render_depth(vertices, faces, T, K, SHAPE)
-        assert np.array_equal(raster.mask(raster.triangles(vertices, faces, T, K), SHAPE), depth > 0)
+        assert np.array_equal(raster.mask(raster.triangles(vertices, faces, T, K)[0], SHAPE), depth > 0)

@@ -148,11 +148,9 @@ def robot_view(arm: tuple, robot_mask: np.ndarray, joint_positions: np.ndarray) 
 
 
 def link_mesh(robot, name: str) -> trimesh.Trimesh:
-    """One arm link's visual meshes in its link frame (metres), vertices merged so edges know both faces."""
+    """One arm link's visual meshes in its link frame (metres); SilhouetteModel merges their corners."""
     parts = []
     for visual in robot.model.link(name).visuals:
         part = trimesh.load(str(robot.urdf.parent / visual.mesh), force="mesh")
         parts.append(part.apply_transform(visual.origin))
-    mesh = trimesh.util.concatenate(parts)
-    mesh.merge_vertices()
-    return mesh
+    return trimesh.util.concatenate(parts)
