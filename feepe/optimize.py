@@ -87,12 +87,14 @@ class _Problem:
         self.depth = np.isfinite(obs.observed_cam).all(1) if w3d > 0 else np.zeros(len(obs.uv), bool)
 
     def errors(self, T: np.ndarray, jacobian: bool = False) -> tuple[list, list]:
+        extra = [term.residuals(T, jacobian) for term in self.terms]
+        if len(self.obs.uv) == 0:  # the terms alone (the silhouette refinement): no empty match blocks to build
+            return [e for e, _ in extra], [J for _, J in extra] if jacobian else []
         Q = self.obs.base_points @ T[:3, :3].T
         P = Q + T[:3, 3]
         uv, dpi = project(P, self.obs.K)
         e2 = uv - self.obs.uv
         blocks = [e2 / self.sigma_px, (P[self.depth] - self.obs.observed_cam[self.depth]) * self.k3]
-        extra = [term.residuals(T, jacobian) for term in self.terms]
         blocks += [e for e, _ in extra]
         if not jacobian:
             return blocks, []
@@ -168,5 +170,7 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
 
 
 def reprojection_px(T_cam_base: np.ndarray, obs: Observations) -> np.ndarray:
+    if len(obs.uv) == 0:
+        return np.zeros(0)
     blocks, _ = _Problem(obs, 1.0, 1.0, 0.0).errors(T_cam_base)
     return np.linalg.norm(blocks[0], axis=1)

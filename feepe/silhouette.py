@@ -122,7 +122,8 @@ class SilhouetteModel:
         self.outward = np.concatenate([normals[pairs[:, 0]] + normals[pairs[:, 1]], away])
         mid = mesh.vertices[self.edges].mean(1)
         self.o1, self.o2 = np.sum(self.n1 * mid, 1), np.sum(self.n2 * mid, 1)  # n . mid, for the rim test
-        self.radius = float(np.linalg.norm(mesh.vertices - mesh.bounds.mean(0), axis=1).max())
+        self.centre = mesh.bounds.mean(0)  # the bounding sphere's, for image_motion_px
+        self.radius = float(np.linalg.norm(mesh.vertices - self.centre, axis=1).max())
 
     @classmethod
     def from_ply(cls, path: Path, scale: float = 0.001) -> "SilhouetteModel":
@@ -354,7 +355,7 @@ def _reused(store: dict, key, model: PartsSilhouette, T_cam_parts: np.ndarray, K
 def image_motion_px(model: SilhouetteModel, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
     """A bound on how far any model point moves in the image between two poses (small motions): the
     bounding sphere's centre shift plus its radius turned through the rotation, at the sphere's near side."""
-    c = model.mesh.bounds.mean(0)
+    c = model.centre
     a, b = T_a[:3, :3] @ c + T_a[:3, 3], T_b[:3, :3] @ c + T_b[:3, 3]
     cos = np.clip((np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1) / 2, -1.0, 1.0)
     near = max(min(a[2], b[2]) - model.radius, 1e-3)
