@@ -73,6 +73,8 @@ bench: dataset
 	$(PY) benchmarks/estimator.py --dataset $(DATA)
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette --silhouette robot
+	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette+depth
+	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette+depth --silhouette robot
 	$(PY) benchmarks/silhouette.py --dataset $(DATA)
 	$(PY) benchmarks/metrics.py
 

@@ -1,8 +1,9 @@
 """FEEPE speed: onboarding time per end-effector and per-stage ms/frame (variant D) on a rendered data set.
 
 Prints figures, asserts nothing: `make bench` or `.venv/bin/python benchmarks/estimator.py [--dataset data/mini]
-[--backbone sift+normals] [--frames N] [--refine silhouette] [--silhouette robot]`. Onboarding runs into a fresh cache folder, so it
-is timed cold. With --refine, the refinement's own ms/frame (our extension) is the `refinement` stage.
+[--backbone sift+normals] [--frames N] [--refine silhouette|silhouette+depth] [--silhouette robot]`. Onboarding
+runs into a fresh cache folder, so it is timed cold. With --refine, the refinement's own ms/frame (our
+extension) is the `refinement` stage.
 """
 
 import argparse
