@@ -25,7 +25,7 @@ def ray_cast_depth(models, casters, T_cam_parts, K, shape) -> np.ndarray:
     """Every part's first hit along the ray through each pixel centre of its bounding box (the old way)."""
     z = np.zeros(shape)
     for m, rays_of, T in zip(models, casters, T_cam_parts):
-        centre = transform_points(T, m.mesh.bounds.mean(0)[None])[0]
+        centre = transform_points(T, m.centre[None])[0]
         if centre[2] <= m.radius:
             continue
         c = K[:2, :2] @ (centre[:2] / centre[2]) + K[:2, 2]

@@ -186,7 +186,7 @@ class Estimator:
         self.T_cam_base: np.ndarray | None = None
         self.frame = 0
         self._fitted: tuple[int, float] | None = None  # pool size and mean key-frame IoU at the last refinement
-        self.centres = CentreTrack(self.silhouette.mesh.bounds.mean(0)) if self.silhouette is not None else None
+        self.centres = CentreTrack(self.silhouette.centre) if self.silhouette is not None else None
 
     def step(self, rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray,
              T_base_ee: np.ndarray, robot: RobotView | None = None) -> FrameResult:
@@ -286,7 +286,7 @@ class Estimator:
         if pivot_cam is None:
             return []
         model_base = np.concatenate([transform_points(T, P) for P, T in zip(self._robot_points, T_base_parts)])
-        pivot_base = transform_points(T_base_parts[0], self.silhouette.mesh.bounds.mean(0)[None])[0]
+        pivot_base = transform_points(T_base_parts[0], self.silhouette.centre[None])[0]
         return robot_starts(model_base, observed_points(depth, robot_mask, K), pivot_base, pivot_cam)
 
     def _refine_silhouette(self, starts: list[np.ndarray], frames: list, clouds: list) -> np.ndarray:
