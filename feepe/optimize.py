@@ -170,7 +170,5 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
 
 
 def reprojection_px(T_cam_base: np.ndarray, obs: Observations) -> np.ndarray:
-    if len(obs.uv) == 0:
-        return np.zeros(0)
-    blocks, _ = _Problem(obs, 1.0, 1.0, 0.0).errors(T_cam_base)
-    return np.linalg.norm(blocks[0], axis=1)
+    uv, _ = project(obs.base_points @ T_cam_base[:3, :3].T + T_cam_base[:3, 3], obs.K)
+    return np.linalg.norm(uv - obs.uv, axis=1)
