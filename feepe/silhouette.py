@@ -33,6 +33,7 @@ _DISK = (np.add.outer(np.arange(-2, 3) ** 2, np.arange(-2, 3) ** 2) <= INSIDE_PX
 OCCLUDER_MARGIN_M = 0.03  # observed depth this much nearer than the model there: something stands in front
 NEAR_M = 0.05  # contour edges nearer the camera than this are left out (a link can reach behind it)
 REUSE_PX = 0.5  # a frame's contour is extracted again once the model has moved this far in its image
+KEPT = 4  # the last extractions kept per frame: a descent's check revisits poses a few solves back
 COARSE_M = 0.003  # mask IoUs (at every second pixel, where a pixel spans 5 mm or more) and the coarse stages
 # of a descent use a copy of each mesh clustered to this grid: 2-6x fewer faces; at mini's distances its
 # contour lies on the exact mask's outline as closely as the exact contour does (0.2 px mean)
@@ -46,8 +47,9 @@ class MaskView:
     mask: np.ndarray  # (H, W) bool
     K: np.ndarray  # (3, 3) full-image intrinsics
     depth: np.ndarray | None = None  # (H, W) metres, 0 unknown; None: no occlusion reasoning
-    # the last contour extracted on this frame per model and point spacing: (T_cam_parts, visible model
-    # points per part). A new key frame moves the calibration a little; the other frames' outlines then stay put.
+    # the last KEPT contours extracted on this frame per model and point spacing, newest first: (T_cam_parts,
+    # visible model points per part) each. A new key frame moves the calibration a little; the other frames'
+    # outlines then stay put.
     contours: dict = field(default_factory=dict, repr=False)
     ious: dict = field(default_factory=dict, repr=False)  # the same for the mask IoU per model and stride
 
@@ -343,13 +345,17 @@ def visible_contour(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskVie
 
 
 def _reused(store: dict, key, model: PartsSilhouette, T_cam_parts: np.ndarray, K: np.ndarray, compute):
-    """A frame's stored (T_cam_parts, value) under `key`, computed again only when a part has moved more than
-    REUSE_PX in the image since (a new key frame moves the calibration a little; the other frames' stand)."""
-    last = store.get(key)
-    if last is not None and model.motion_px(last[0], T_cam_parts, K) <= REUSE_PX:
-        return last[1]
-    store[key] = (T_cam_parts.copy(), compute())
-    return store[key][1]
+    """The value stored under `key` at the nearest of a frame's last KEPT poses, computed again only when
+    the model lies more than REUSE_PX (in the image) from each (a new key frame moves the calibration a
+    little, and the other frames' stand; `Estimator._descend` revisits poses a few solves back)."""
+    kept = store.setdefault(key, [])
+    if kept:
+        motion, i = min((model.motion_px(T, T_cam_parts, K), i) for i, (T, _) in enumerate(kept))
+        if motion <= REUSE_PX:
+            return kept[i][1]
+    kept.insert(0, (T_cam_parts.copy(), compute()))
+    del kept[KEPT:]
+    return kept[0][1]
 
 
 def image_motion_px(model: SilhouetteModel, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:

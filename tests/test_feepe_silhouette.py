@@ -88,7 +88,8 @@ def test_a_frames_contour_is_reused_until_the_model_moves_half_a_pixel():
     assert visible_contour(model, near[None], view, 1.0) is first
     far = _step(T, np.array([0.05, 0, 0, 0, 0, 0]))
     again = visible_contour(model, far[None], view, 1.0)
-    assert again is not first and len(again[0]) and np.array_equal(view.contours[model, 1.0][0], far[None])
+    assert again is not first and len(again[0]) and np.array_equal(view.contours[model, 1.0][0][0], far[None])
+    assert visible_contour(model, T[None], view, 1.0) is first  # the earlier pose is kept too
 
 
 def test_measured_scale_follows_how_well_the_masks_fit():
