@@ -190,8 +190,14 @@ class PartsSilhouette:
             raster.draw_depth(z, m.vertices, m.faces, T, K)
         return z
 
+    @cached_property
+    def _spheres(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.array([m.centre for m in self.parts], float), np.array([m.radius for m in self.parts], float)
+
     def motion_px(self, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
-        return max(image_motion_px(m, a, b, K) for m, a, b in zip(self.parts, T_a, T_b))
+        """image_motion_px's bound, the largest over the parts (T_a, T_b: (n, 4, 4))."""
+        return _motion_px(np.ascontiguousarray(T_a, dtype=float), np.ascontiguousarray(T_b, dtype=float),
+                          *self._spheres, float(max(K[0, 0], K[1, 1])))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -361,11 +367,27 @@ def _reused(store: dict, key, model: PartsSilhouette, T_cam_parts: np.ndarray, K
 def image_motion_px(model: SilhouetteModel, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
     """A bound on how far any model point moves in the image between two poses (small motions): the
     bounding sphere's centre shift plus its radius turned through the rotation, at the sphere's near side."""
-    c = model.centre
-    a, b = T_a[:3, :3] @ c + T_a[:3, 3], T_b[:3, :3] @ c + T_b[:3, 3]
-    cos = np.clip((np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1) / 2, -1.0, 1.0)
-    near = max(min(a[2], b[2]) - model.radius, 1e-3)
-    return float(max(K[0, 0], K[1, 1]) * (np.linalg.norm(b - a) + np.arccos(cos) * model.radius) / near)
+    return PartsSilhouette([model]).motion_px(T_a[None], T_b[None], K)
+
+
+@numba.njit(cache=True, nogil=True)
+def _motion_px(T_a, T_b, centres, radii, f):
+    """image_motion_px's bound for each part (T_a, T_b: (n, 4, 4)); the largest."""
+    out = 0.0
+    for n in range(T_a.shape[0]):
+        c, r = centres[n], radii[n]
+        shift, trace = 0.0, 0.0
+        for i in range(3):
+            a = T_a[n, i, 0] * c[0] + T_a[n, i, 1] * c[1] + T_a[n, i, 2] * c[2] + T_a[n, i, 3]
+            b = T_b[n, i, 0] * c[0] + T_b[n, i, 1] * c[1] + T_b[n, i, 2] * c[2] + T_b[n, i, 3]
+            shift += (b - a) ** 2
+            if i == 2:
+                near = max(min(a, b) - r, 1e-3)
+            for j in range(3):
+                trace += T_a[n, j, i] * T_b[n, j, i]
+        angle = np.arccos(min(max((trace - 1.0) / 2.0, -1.0), 1.0))
+        out = max(out, f * (np.sqrt(shift) + angle * r) / near)
+    return out
 
 
 def contour_fit(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
