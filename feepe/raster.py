@@ -137,43 +137,52 @@ def _cover(tri, out):
 @numba.njit(cache=True, nogil=True)
 def _covered(tri, uv, h, w, cell):
     """For each point, whether a triangle covers it: the triangles that reach an image cell holding a point
-    are binned into those cells (CSR lists), and each point tests its cell's, by bounding box first."""
+    are binned into those cells (CSR lists), and each point tests its cell's, by bounding box first. A summed
+    table of the wanted cells passes over the many triangles that reach none in four lookups each."""
     ch, cw = (h + cell - 1) // cell, (w + cell - 1) // cell
     wanted = np.zeros(ch * cw, np.bool_)
     for j in range(uv.shape[0]):
         if 0.0 <= uv[j, 0] < w and 0.0 <= uv[j, 1] < h:
             wanted[int(uv[j, 1] / cell) * cw + int(uv[j, 0] / cell)] = True
-    box = np.empty((tri.shape[0], 4))
-    cells = np.empty((tri.shape[0], 4), np.int64)  # first and last cell column, first and last row
+    table = np.zeros((ch + 1, cw + 1), np.int32)  # table[r, c]: wanted cells in rows < r, columns < c
+    for cv in range(ch):
+        for cu in range(cw):
+            table[cv + 1, cu + 1] = table[cv, cu + 1] + table[cv + 1, cu] - table[cv, cu] + wanted[cv * cw + cu]
     near = np.empty(tri.shape[0], np.int64)  # the triangles that reach a wanted cell
-    count = np.zeros(ch * cw + 1, np.int64)
     m = 0
     for i in range(tri.shape[0]):
         t = tri[i]
-        box[i, 0], box[i, 1] = min(t[0, 0], t[1, 0], t[2, 0]), max(t[0, 0], t[1, 0], t[2, 0])
-        box[i, 2], box[i, 3] = min(t[0, 1], t[1, 1], t[2, 1]), max(t[0, 1], t[1, 1], t[2, 1])
-        if box[i, 1] < 0.0 or box[i, 0] >= w or box[i, 3] < 0.0 or box[i, 2] >= h:
+        u0, u1 = min(t[0, 0], t[1, 0], t[2, 0]), max(t[0, 0], t[1, 0], t[2, 0])
+        v0, v1 = min(t[0, 1], t[1, 1], t[2, 1]), max(t[0, 1], t[1, 1], t[2, 1])
+        if u1 < 0.0 or u0 >= w or v1 < 0.0 or v0 >= h:
             continue
-        cells[i, 0], cells[i, 1] = int(max(box[i, 0], 0.0) / cell), min(int(box[i, 1] / cell), cw - 1)
-        cells[i, 2], cells[i, 3] = int(max(box[i, 2], 0.0) / cell), min(int(box[i, 3] / cell), ch - 1)
-        reaches = False
-        for cv in range(cells[i, 2], cells[i, 3] + 1):
-            for cu in range(cells[i, 0], cells[i, 1] + 1):
-                if wanted[cv * cw + cu]:
-                    count[cv * cw + cu + 1] += 1
-                    reaches = True
-        if reaches:
+        c0, c1 = int(max(u0, 0.0) / cell), min(int(u1 / cell), cw - 1)
+        r0, r1 = int(max(v0, 0.0) / cell), min(int(v1 / cell), ch - 1)
+        if table[r1 + 1, c1 + 1] - table[r0, c1 + 1] - table[r1 + 1, c0] + table[r0, c0] > 0:
             near[m] = i
             m += 1
+    box = np.empty((m, 4))
+    cells = np.empty((m, 4), np.int64)  # first and last cell column, first and last row
+    count = np.zeros(ch * cw + 1, np.int64)
+    for k in range(m):
+        t = tri[near[k]]
+        box[k, 0], box[k, 1] = min(t[0, 0], t[1, 0], t[2, 0]), max(t[0, 0], t[1, 0], t[2, 0])
+        box[k, 2], box[k, 3] = min(t[0, 1], t[1, 1], t[2, 1]), max(t[0, 1], t[1, 1], t[2, 1])
+        cells[k, 0], cells[k, 1] = int(max(box[k, 0], 0.0) / cell), min(int(box[k, 1] / cell), cw - 1)
+        cells[k, 2], cells[k, 3] = int(max(box[k, 2], 0.0) / cell), min(int(box[k, 3] / cell), ch - 1)
+        for cv in range(cells[k, 2], cells[k, 3] + 1):
+            for cu in range(cells[k, 0], cells[k, 1] + 1):
+                if wanted[cv * cw + cu]:
+                    count[cv * cw + cu + 1] += 1
     start = np.cumsum(count)
     fill = start[:-1].copy()
-    ids = np.empty(start[-1], np.int64)
-    for i in near[:m]:
-        for cv in range(cells[i, 2], cells[i, 3] + 1):
-            for cu in range(cells[i, 0], cells[i, 1] + 1):
+    ids = np.empty(start[-1], np.int64)  # positions in `near`
+    for k in range(m):
+        for cv in range(cells[k, 2], cells[k, 3] + 1):
+            for cu in range(cells[k, 0], cells[k, 1] + 1):
                 c = cv * cw + cu
                 if wanted[c]:
-                    ids[fill[c]] = i
+                    ids[fill[c]] = k
                     fill[c] += 1
     out = np.zeros(uv.shape[0], np.bool_)
     for j in range(uv.shape[0]):
@@ -181,9 +190,9 @@ def _covered(tri, uv, h, w, cell):
         if not (0.0 <= u < w and 0.0 <= v < h):
             continue
         c = int(v / cell) * cw + int(u / cell)
-        for k in range(start[c], start[c + 1]):
-            i = ids[k]
-            if box[i, 0] <= u <= box[i, 1] and box[i, 2] <= v <= box[i, 3] and _inside(tri[i], u, v):
+        for q in range(start[c], start[c + 1]):
+            k = ids[q]
+            if box[k, 0] <= u <= box[k, 1] and box[k, 2] <= v <= box[k, 3] and _inside(tri[near[k]], u, v):
                 out[j] = True
                 break
     return out
