@@ -12,8 +12,8 @@ from feepe.estimator import Estimator, FeepeOptions, RobotView, describe
 from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
 from feepe.optimize import _step
-from feepe.silhouette import (REUSE_PX, PartsSilhouette, SilhouetteModel, SilhouetteTerm, contour_term, image_motion_px,
-                              mask_view, mean_iou, visible_contour)
+from feepe.silhouette import (KEPT, REUSE_PX, PartsSilhouette, SilhouetteModel, SilhouetteTerm, contour_term,
+                              image_motion_px, mask_view, mean_iou, visible_contour)
 from kernel.bop import read_frame, read_scene, split_dir
 from kernel.errors import UserError
 from kernel.template_set import find_template_set
@@ -90,6 +90,9 @@ def test_a_frames_contour_is_reused_until_the_model_moves_half_a_pixel():
     again = visible_contour(model, far[None], view, 1.0)
     assert again is not first and len(again[0]) and np.array_equal(view.contours[model, 1.0][0][0], far[None])
     assert visible_contour(model, T[None], view, 1.0) is first  # the earlier pose is kept too
+    for k in range(KEPT):  # until KEPT newer poses push it out
+        visible_contour(model, _step(T, np.array([0.05 * (k + 2), 0, 0, 0, 0, 0]))[None], view, 1.0)
+    assert visible_contour(model, T[None], view, 1.0) is not first
 
 
 def test_measured_scale_follows_how_well_the_masks_fit():
