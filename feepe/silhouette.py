@@ -423,6 +423,31 @@ def frame_iou(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
     return _reused(mv.ious, (model, stride), model, T_cam_parts, mv.K, measure)
 
 
+def iou_bound(model: PartsSilhouette, T_cam_base: np.ndarray, frame: tuple[np.ndarray, MaskView],
+              stride: int) -> float:
+    """An upper bound of frame_iou without rendering (for a decision that only asks whether an IoU can
+    exceed a bar): the share of the mask inside the image boxes that hold each part's bounding sphere.
+    What is drawn lies in the boxes, and the union of drawn and mask holds the mask."""
+    T_base_parts, mv = frame
+    seen = mv.mask[::stride, ::stride]
+    total = np.count_nonzero(seen)
+    if not total:
+        return 1.0
+    (h, w), K = seen.shape, np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K
+    boxes = np.zeros(seen.shape, bool)
+    for m, T in zip(model.parts, placed(T_cam_base, T_base_parts)):
+        (x, y, z), r = T[:3, :3] @ m.centre + T[:3, 3], m.radius
+        if z - r <= raster.NEAR_M:  # the sphere reaches the near plane: no box holds its image
+            return 1.0
+        # over the cube around the sphere X/Z and Y/Z are extreme at its corners
+        us = [K[0, 0] * a / b + K[0, 2] for a in (x - r, x + r) for b in (z - r, z + r)]
+        vs = [K[1, 1] * a / b + K[1, 2] for a in (y - r, y + r) for b in (z - r, z + r)]
+        u0, u1 = max(int(np.floor(min(us))), 0), min(int(np.ceil(max(us))), w - 1)
+        v0, v1 = max(int(np.floor(min(vs))), 0), min(int(np.ceil(max(vs))), h - 1)
+        boxes[v0:v1 + 1, u0:u1 + 1] = True  # an empty slice when the box misses the image
+    return np.count_nonzero(seen & boxes) / total
+
+
 def _project(P: np.ndarray, K: np.ndarray) -> np.ndarray:
     z = np.maximum(P[:, 2], 1e-9)
     return np.stack([K[0, 0] * P[:, 0] / z + K[0, 2], K[1, 1] * P[:, 1] / z + K[1, 2]], 1)

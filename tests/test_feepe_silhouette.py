@@ -13,7 +13,7 @@ from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
 from feepe.optimize import _step
 from feepe.silhouette import (KEPT, REUSE_PX, PartsSilhouette, SilhouetteModel, SilhouetteTerm, contour_term,
-                              image_motion_px, mask_view, mean_iou, visible_contour)
+                              frame_iou, image_motion_px, iou_bound, mask_view, mean_iou, visible_contour)
 from kernel.bop import read_frame, read_scene, split_dir
 from kernel.errors import UserError
 from kernel.template_set import find_template_set
@@ -227,6 +227,28 @@ def test_robot_parts_fit_the_outline_of_their_union():
     frames = [(T_parts, view)]  # the camera is the base frame here
     assert mean_iou(model, np.eye(4), frames) > 0.99
     assert mean_iou(PartsSilhouette([ee]), np.eye(4), [(T_parts[:1], view)]) < 0.7
+
+
+def test_iou_bound_is_never_below_the_rendered_iou():
+    """The screening of starts skips a render where the bound is under the bar: it must hold for every pose,
+    one part or two, the mask seen whole or cut by the image border, and reach 1 where the pose is right."""
+    ee = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
+    link = SilhouetteModel(trimesh.creation.box((0.15, 0.03, 0.03)))
+    model, T = PartsSilhouette([ee, link]), _box_pose()
+    T_link = T.copy()
+    T_link[:3, 3] += [0.06, 0.01, 0.03]
+    T_parts = np.stack([T, T_link])
+    frame = (T_parts, mask_view(model.render_depth(T_parts, K, (120, 160)) > 0, K))
+    rng = np.random.default_rng(0)
+    bounds = []
+    for k in range(40):
+        move = np.concatenate([rng.normal(0, 0.3, 3), rng.normal(0, 0.08, 3)])
+        T_cam_base = np.eye(4) if k == 0 else _step(np.eye(4), move)
+        for stride in (1, 2):
+            rendered = frame_iou(model, np.einsum("ij,njk->nik", T_cam_base, T_parts), frame[1], stride)
+            bounds.append(iou_bound(model, T_cam_base, frame, stride))
+            assert rendered <= bounds[-1] + 1e-12
+    assert bounds[0] == 1.0 and min(bounds) < 0.5  # the bound does pass over starts far off
 
 
 def test_a_part_reaching_behind_the_camera_keeps_only_its_edges_in_front():
