@@ -124,7 +124,7 @@ class SilhouetteModel:
         self.outward = np.concatenate([normals[pairs[:, 0]] + normals[pairs[:, 1]], away])
         mid = mesh.vertices[self.edges].mean(1)
         self.o1, self.o2 = np.sum(self.n1 * mid, 1), np.sum(self.n2 * mid, 1)  # n . mid, for the rim test
-        self.centre = mesh.bounds.mean(0)  # the bounding sphere's, for image_motion_px
+        self.centre = mesh.bounds.mean(0)  # the bounding sphere's, for PartsSilhouette.motion_px
         self.radius = float(np.linalg.norm(mesh.vertices - self.centre, axis=1).max())
 
     @classmethod
@@ -195,7 +195,9 @@ class PartsSilhouette:
         return np.array([m.centre for m in self.parts], float), np.array([m.radius for m in self.parts], float)
 
     def motion_px(self, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
-        """image_motion_px's bound, the largest over the parts (T_a, T_b: (n, 4, 4))."""
+        """A bound on how far any model point moves in the image between two poses of the parts (T_a, T_b:
+        (n, 4, 4); small motions): per part, its bounding sphere's centre shift plus its radius turned through
+        the rotation, at the sphere's near side; the largest over the parts."""
         return _motion_px(np.ascontiguousarray(T_a, dtype=float), np.ascontiguousarray(T_b, dtype=float),
                           *self._spheres, float(max(K[0, 0], K[1, 1])))
 
@@ -364,15 +366,9 @@ def _reused(store: dict, key, model: PartsSilhouette, T_cam_parts: np.ndarray, K
     return kept[0][1]
 
 
-def image_motion_px(model: SilhouetteModel, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
-    """A bound on how far any model point moves in the image between two poses (small motions): the
-    bounding sphere's centre shift plus its radius turned through the rotation, at the sphere's near side."""
-    return PartsSilhouette([model]).motion_px(T_a[None], T_b[None], K)
-
-
 @numba.njit(cache=True, nogil=True)
 def _motion_px(T_a, T_b, centres, radii, f):
-    """image_motion_px's bound for each part (T_a, T_b: (n, 4, 4)); the largest."""
+    """PartsSilhouette.motion_px's bound for each part (T_a, T_b: (n, 4, 4)); the largest."""
     out = 0.0
     for n in range(T_a.shape[0]):
         c, r = centres[n], radii[n]

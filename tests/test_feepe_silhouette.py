@@ -13,7 +13,7 @@ from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
 from feepe.optimize import _step
 from feepe.silhouette import (KEPT, REUSE_PX, PartsSilhouette, SilhouetteModel, SilhouetteTerm, contour_term,
-                              frame_iou, image_motion_px, iou_bound, mask_view, mean_iou, visible_contour)
+                              frame_iou, iou_bound, mask_view, mean_iou, visible_contour)
 from kernel.bop import read_frame, read_scene, split_dir
 from kernel.errors import UserError
 from kernel.template_set import find_template_set
@@ -75,7 +75,7 @@ def test_image_motion_bound_covers_every_vertex():
     for _ in range(20):
         T2 = _step(T, np.concatenate([rng.normal(0, 0.01, 3), rng.normal(0, 0.002, 3)]))
         moved = np.linalg.norm(_project(transform_points(T2, V)) - _project(transform_points(T, V)), axis=1).max()
-        bound = image_motion_px(model, T, T2, K)
+        bound = PartsSilhouette([model]).motion_px(T[None], T2[None], K)
         assert moved <= bound <= 4 * moved + 0.5
 
 
@@ -231,7 +231,7 @@ def test_robot_parts_fit_the_outline_of_their_union():
 
 def test_iou_bound_is_never_below_the_rendered_iou():
     """The screening of starts skips a render where the bound is under the bar: it must hold for every pose,
-    one part or two, the mask seen whole or cut by the image border, and reach 1 where the pose is right."""
+    one part or two, the model seen whole or partly off the image, and reach 1 where the pose is right."""
     ee = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
     link = SilhouetteModel(trimesh.creation.box((0.15, 0.03, 0.03)))
     model, T = PartsSilhouette([ee, link]), _box_pose()
