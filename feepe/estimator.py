@@ -25,7 +25,7 @@ from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
 from feepe.robot_starts import model_points, observed_points, robot_starts
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
-                              mean_iou)
+                              mean_iou, placed)
 from feepe.symmetry import consensus
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
@@ -310,8 +310,9 @@ class Estimator:
             warm = self._descend(self.T_cam_base, frames, sigmas[-1:], clouds)
             # what another start must beat; an IoU exceeds neither 1 nor its bound, so few starts need a render
             bar = fit(warm, current) + opts.silhouette_switch_iou
-            if bar >= 1.0 or all(iou_bound(self.parts, T, current[0], IOU_STRIDE) <= bar or fit(T, current) <= bar
-                                 for T in starts):
+            T_base_parts, mv = current[0]
+            if bar >= 1.0 or all(iou_bound(self.parts, placed(T, T_base_parts), mv, IOU_STRIDE) <= bar
+                                 or fit(T, current) <= bar for T in starts):
                 self._fitted = (len(self.pool), fit(warm, frames))
                 return warm
         scored = sorted(((fit(T, frames), i) for i, T in enumerate(starts)), reverse=True)

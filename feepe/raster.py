@@ -148,7 +148,10 @@ def _covered(tri, uv, h, w, cell):
     for cv in range(ch):
         for cu in range(cw):
             table[cv + 1, cu + 1] = table[cv, cu + 1] + table[cv + 1, cu] - table[cv, cu] + wanted[cv * cw + cu]
-    near = np.empty(tri.shape[0], np.int64)  # the triangles that reach a wanted cell
+    near = np.empty(tri.shape[0], np.int64)  # the triangles that reach a wanted cell, and their boxes:
+    box = np.empty((tri.shape[0], 4))  # rows written only for those (of a fine mesh, a few)
+    cells = np.empty((tri.shape[0], 4), np.int64)  # first and last cell column, first and last row
+    count = np.zeros(ch * cw + 1, np.int64)
     m = 0
     for i in range(tri.shape[0]):
         t = tri[i]
@@ -158,22 +161,16 @@ def _covered(tri, uv, h, w, cell):
             continue
         c0, c1 = int(max(u0, 0.0) / cell), min(int(u1 / cell), cw - 1)
         r0, r1 = int(max(v0, 0.0) / cell), min(int(v1 / cell), ch - 1)
-        if table[r1 + 1, c1 + 1] - table[r0, c1 + 1] - table[r1 + 1, c0] + table[r0, c0] > 0:
-            near[m] = i
-            m += 1
-    box = np.empty((m, 4))
-    cells = np.empty((m, 4), np.int64)  # first and last cell column, first and last row
-    count = np.zeros(ch * cw + 1, np.int64)
-    for k in range(m):
-        t = tri[near[k]]
-        box[k, 0], box[k, 1] = min(t[0, 0], t[1, 0], t[2, 0]), max(t[0, 0], t[1, 0], t[2, 0])
-        box[k, 2], box[k, 3] = min(t[0, 1], t[1, 1], t[2, 1]), max(t[0, 1], t[1, 1], t[2, 1])
-        cells[k, 0], cells[k, 1] = int(max(box[k, 0], 0.0) / cell), min(int(box[k, 1] / cell), cw - 1)
-        cells[k, 2], cells[k, 3] = int(max(box[k, 2], 0.0) / cell), min(int(box[k, 3] / cell), ch - 1)
-        for cv in range(cells[k, 2], cells[k, 3] + 1):
-            for cu in range(cells[k, 0], cells[k, 1] + 1):
+        if table[r1 + 1, c1 + 1] - table[r0, c1 + 1] - table[r1 + 1, c0] + table[r0, c0] == 0:
+            continue
+        near[m] = i
+        box[m, 0], box[m, 1], box[m, 2], box[m, 3] = u0, u1, v0, v1
+        cells[m, 0], cells[m, 1], cells[m, 2], cells[m, 3] = c0, c1, r0, r1
+        for cv in range(r0, r1 + 1):
+            for cu in range(c0, c1 + 1):
                 if wanted[cv * cw + cu]:
                     count[cv * cw + cu + 1] += 1
+        m += 1
     start = np.cumsum(count)
     fill = start[:-1].copy()
     ids = np.empty(start[-1], np.int64)  # positions in `near`

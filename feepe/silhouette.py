@@ -124,7 +124,7 @@ class SilhouetteModel:
         self.outward = np.concatenate([normals[pairs[:, 0]] + normals[pairs[:, 1]], away])
         mid = mesh.vertices[self.edges].mean(1)
         self.o1, self.o2 = np.sum(self.n1 * mid, 1), np.sum(self.n2 * mid, 1)  # n . mid, for the rim test
-        self.centre = mesh.bounds.mean(0)  # the bounding sphere's, for PartsSilhouette.motion_px
+        self.centre = mesh.bounds.mean(0)  # the bounding sphere's (motion and IoU bounds, position starts)
         self.radius = float(np.linalg.norm(mesh.vertices - self.centre, axis=1).max())
 
     @classmethod
@@ -419,19 +419,17 @@ def frame_iou(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
     return _reused(mv.ious, (model, stride), model, T_cam_parts, mv.K, measure)
 
 
-def iou_bound(model: PartsSilhouette, T_cam_base: np.ndarray, frame: tuple[np.ndarray, MaskView],
-              stride: int) -> float:
+def iou_bound(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, stride: int) -> float:
     """An upper bound of frame_iou without rendering (for a decision that only asks whether an IoU can
     exceed a bar): the share of the mask inside the image boxes that hold each part's bounding sphere.
     What is drawn lies in the boxes, and the union of drawn and mask holds the mask."""
-    T_base_parts, mv = frame
     seen = mv.mask[::stride, ::stride]
     total = np.count_nonzero(seen)
     if not total:
         return 1.0
     (h, w), K = seen.shape, np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K
     boxes = np.zeros(seen.shape, bool)
-    for m, T in zip(model.parts, placed(T_cam_base, T_base_parts)):
+    for m, T in zip(model.parts, T_cam_parts):
         (x, y, z), r = T[:3, :3] @ m.centre + T[:3, 3], m.radius
         if z - r <= raster.NEAR_M:  # the sphere reaches the near plane: no box holds its image
             return 1.0

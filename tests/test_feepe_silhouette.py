@@ -13,7 +13,7 @@ from feepe.icp import SurfaceModel
 from feepe.onboarding import onboard
 from feepe.optimize import _step
 from feepe.silhouette import (KEPT, REUSE_PX, PartsSilhouette, SilhouetteModel, SilhouetteTerm, contour_term,
-                              frame_iou, iou_bound, mask_view, mean_iou, visible_contour)
+                              frame_iou, iou_bound, mask_view, mean_iou, placed, visible_contour)
 from kernel.bop import read_frame, read_scene, split_dir
 from kernel.errors import UserError
 from kernel.template_set import find_template_set
@@ -238,15 +238,15 @@ def test_iou_bound_is_never_below_the_rendered_iou():
     T_link = T.copy()
     T_link[:3, 3] += [0.06, 0.01, 0.03]
     T_parts = np.stack([T, T_link])
-    frame = (T_parts, mask_view(model.render_depth(T_parts, K, (120, 160)) > 0, K))
+    view = mask_view(model.render_depth(T_parts, K, (120, 160)) > 0, K)
     rng = np.random.default_rng(0)
     bounds = []
     for k in range(40):
         move = np.concatenate([rng.normal(0, 0.3, 3), rng.normal(0, 0.08, 3)])
         T_cam_base = np.eye(4) if k == 0 else _step(np.eye(4), move)
         for stride in (1, 2):
-            rendered = frame_iou(model, np.einsum("ij,njk->nik", T_cam_base, T_parts), frame[1], stride)
-            bounds.append(iou_bound(model, T_cam_base, frame, stride))
+            rendered = frame_iou(model, placed(T_cam_base, T_parts), view, stride)
+            bounds.append(iou_bound(model, placed(T_cam_base, T_parts), view, stride))
             assert rendered <= bounds[-1] + 1e-12
     assert bounds[0] == 1.0 and min(bounds) < 0.5  # the bound does pass over starts far off
 
