@@ -62,6 +62,8 @@ class FeepeOptions:
     silhouette_min_sigma_px: float = 0.25  # with depth, the finest stage's scale: the masks' measured spread, at least this
     silhouette_depth_tolerance: float = 2.0  # standard errors depth may worsen the mean contour distance by
     robot_start_frames: int = 3  # silhouette="robot": first frames that also start from the robot's depth
+    silhouette_key_frames: int = 16  # key frames the refinement fits (FEEPE D's solve keeps k_f)
+    silhouette_memory_m: float = 0.005  # with the refinement, a frame whose end-effector moved this far joins the memory
     silhouette_refit_growth: float = 0.0  # new key frames refit once the memory grew by this fraction (0: each)
     depth_sigma_m: float = 0.002  # noise shape sigma_m + sigma_z2 * z^2 (m), scaled by the measured spread;
     depth_sigma_z2: float = 0.0036  # z^2 factor: Intel's D435 RMS model, subpixel 0.08 / (f 447 px x 0.05 m)
@@ -73,10 +75,10 @@ class FeepeOptions:
             raise UserError(f"refit growth {self.silhouette_refit_growth} must be >= 0 (0: refit on each new key frame)")
         for name, low in (("k_f", 0), ("memory_threshold_deg", 0), ("symmetry_tolerance_deg", 0),
                           ("icp_iterations", 0), ("icp_gate_m", 0), ("silhouette_rounds", 1),
-                          ("silhouette_starts", 1), ("robot_start_frames", 0)):
+                          ("silhouette_starts", 1), ("robot_start_frames", 0), ("silhouette_key_frames", 0)):
             if not getattr(self, name) >= low:
                 raise UserError(f"FeepeOptions.{name} = {getattr(self, name)} must be >= {low}")
-        for name in ("icp_sigma_m", "silhouette_min_sigma_px", "depth_sigma_m"):
+        for name in ("icp_sigma_m", "silhouette_min_sigma_px", "depth_sigma_m", "silhouette_memory_m"):
             if not getattr(self, name) > 0:
                 raise UserError(f"FeepeOptions.{name} = {getattr(self, name)} must be > 0")
         if not self.silhouette_sigmas_px or not all(s > 0 for s in self.silhouette_sigmas_px):
@@ -134,7 +136,7 @@ class FrameResult:
 
 SILHOUETTE_OPTIONS = ("refine", "silhouette", "silhouette_sigmas_px", "silhouette_rounds", "silhouette_starts",
                       "silhouette_position_starts", "silhouette_switch_iou", "silhouette_min_sigma_px",
-                      "silhouette_depth_tolerance",
+                      "silhouette_depth_tolerance", "silhouette_key_frames", "silhouette_memory_m",
                       "depth_sigma_m", "depth_sigma_z2")
 
 
@@ -183,7 +185,8 @@ class Estimator:
         the arm links' meshes (link frames) that `silhouette="robot"` fits beside the end-effector."""
         self.parts = PartsSilhouette([self.silhouette, *(arm or [])]) if self.silhouette is not None else None
         self._robot_points = model_points([p.mesh for p in self.parts.parts]) if arm else None
-        self.pool = MemoryPool(self.opts.memory_threshold_deg)
+        self.pool = MemoryPool(self.opts.memory_threshold_deg,
+                               self.opts.silhouette_memory_m if self.opts.refine != "none" else np.inf)
         self.T_cam_base: np.ndarray | None = None
         self.frame = 0
         self._fitted: tuple[int, float] | None = None  # pool size and mean key-frame IoU at the last refinement
@@ -253,6 +256,8 @@ class Estimator:
             T = self._align_depth(T, obs, [(T_b, f.cloud) for T_b, f in views])
         if opts.refine != "none":
             t0 = time.perf_counter()
+            k = opts.silhouette_key_frames if opts.variant in ("C", "D") else 0
+            views = [(T_base_ee, found)] + [(e.T_base_ee, e.found) for e in self.pool.key_frames(T_base_ee[:3, :3], k)]
             clouds = [(T_b, f.cloud) for T_b, f in views] if opts.depth_in_refinement else []
             starts = self._starts(T, T_base_ee, found)
             T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in views], clouds)
@@ -347,7 +352,7 @@ class Estimator:
             floor = opts.silhouette_min_sigma_px if clouds and k == len(sigmas) - 1 else sigma
             for _ in range(opts.silhouette_rounds):
                 model = self.parts if k == len(sigmas) - 1 else self.parts.coarse  # exact at the finest stage
-                terms = [contour_term(model, T, frames, floor, step_px=max(1.0, sigma / 2), measured=bool(clouds))]
+                terms = [contour_term(model, T, frames, floor, step_px=max(1.0, sigma / 2), measured=bool(clouds) or k == len(sigmas) - 1)]
                 if clouds:
                     planes = associate(T, clouds, self.model, opts.icp_gate_m)
                     terms.append(sensor_plane_term(planes, T, opts.depth_sigma_m, opts.depth_sigma_z2))

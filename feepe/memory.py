@@ -1,7 +1,9 @@
 """The key-frame memory: a pool of past frames with their candidates, and farthest-point key frames.
 
 A frame joins the pool only when its end-effector orientation is more than `threshold_deg` from every
-pooled frame (BundleTrack's rule, as in the paper). Orientations are compared through forward
+pooled frame (BundleTrack's rule, as in the paper). Our silhouette refinement also admits a frame whose
+end-effector moved more than `threshold_m` from every pooled frame of similar orientation: under a static
+camera a translation alone is a new view too, and the lever arm a calibration's rotation rests on. Orientations are compared through forward
 kinematics: with a static camera, the angle between two camera-frame end-effector rotations equals the
 angle between their base-frame rotations, and the latter carries no estimation error.
 """
@@ -24,8 +26,8 @@ class MemoryEntry:
 
 
 class MemoryPool:
-    def __init__(self, threshold_deg: float = 10.0):
-        self.threshold = np.deg2rad(threshold_deg)
+    def __init__(self, threshold_deg: float = 10.0, threshold_m: float = np.inf):
+        self.threshold, self.threshold_m = np.deg2rad(threshold_deg), threshold_m
         self.entries: list[MemoryEntry] = []
 
     def __len__(self) -> int:
@@ -39,7 +41,9 @@ class MemoryPool:
         if not entry.found.candidates:
             return False
         if self.entries:
-            if rotation_angle(self._rotations(), entry.T_base_ee[:3, :3]).min() <= self.threshold:
+            near = rotation_angle(self._rotations(), entry.T_base_ee[:3, :3]) <= self.threshold
+            moved = np.linalg.norm(np.stack([e.T_base_ee[:3, 3] for e in self.entries]) - entry.T_base_ee[:3, 3], axis=1)
+            if (near & (moved <= self.threshold_m)).any():
                 return False
         self.entries.append(entry)
         return True

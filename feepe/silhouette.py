@@ -275,22 +275,25 @@ def placed(T_cam_base: np.ndarray, T_base_parts: np.ndarray) -> np.ndarray:
 
 
 class SilhouetteTerm:
-    """Residuals: each contour point's signed distance to its frame's mask boundary, over `sigma_px`.
+    """Residuals: each contour point's signed distance to its frame's mask boundary, over its frame's
+    `sigma_px` (one scale, or one per frame).
 
     The points are fixed for a term (re-extracted between solves, as ICP re-associates); the distance
     field's gradient carries the pose's Jacobian.
     """
 
-    def __init__(self, base_points: np.ndarray, view: np.ndarray, views: list[MaskView], sigma_px: float):
+    def __init__(self, base_points: np.ndarray, view: np.ndarray, views: list[MaskView],
+                 sigma_px: float | np.ndarray):
         order = np.argsort(view, kind="stable")  # each view's points in one slice
-        self.base_points, self.view, self.views, self.sigma_px = base_points[order], view[order], views, sigma_px
+        self.base_points, self.view, self.views = base_points[order], view[order], views
+        self.sigma_px = np.broadcast_to(np.asarray(sigma_px, float), (len(views),)).copy()
         self.bounds = np.searchsorted(self.view, np.arange(len(views) + 1))
 
     def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
         e, J = np.empty((len(self.view), 1)), np.empty((len(self.view), 1, 6)) if jacobian else np.empty((0, 1, 6))
         T = np.ascontiguousarray(T_cam_base, dtype=float)
-        for v, a, b in zip(self.views, self.bounds[:-1], self.bounds[1:]):
-            _contour_rows(self.base_points[a:b], v.K, T, v.field, self.sigma_px, e[a:b], J[a:b])
+        for v, s, a, b in zip(self.views, self.sigma_px, self.bounds[:-1], self.bounds[1:]):
+            _contour_rows(self.base_points[a:b], v.K, T, v.field, s, e[a:b], J[a:b])
         return e, (J if jacobian else None)
 
 
@@ -324,9 +327,10 @@ def _contour_rows(points, K, T, field, sigma, e, J):
 
 def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
                  sigma_px: float, step_px: float = 1.0, measured: bool = False) -> SilhouetteTerm:
-    """frames: (T_base_parts, MaskView) each; the contours are those at the current pose. `measured`: the
-    scale is at least the residuals' robust spread at this pose (1.4826 x median), so masks that a
-    segmenter got a few pixels wrong pull less against depth than exact ones."""
+    """frames: (T_base_parts, MaskView) each; the contours are those at the current pose. `measured`: each
+    frame's scale is at least its residuals' robust spread at this pose (1.4826 x median), so a mask that a
+    segmenter got a few pixels wrong pulls less, against depth and against the other frames' masks, than
+    one it got right (a segmenter's error varies from image to image)."""
     points, view = [], []
     for i, (T_base_parts, mv) in enumerate(frames):
         for T_base_part, P in zip(T_base_parts, visible_contour(model, placed(T_cam_base, T_base_parts), mv, step_px)):
@@ -334,8 +338,9 @@ def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tu
             view.append(np.full(len(P), i))
     term = SilhouetteTerm(np.concatenate(points), np.concatenate(view), [mv for _, mv in frames], sigma_px)
     if measured and len(term.view):
-        spread = 1.4826 * float(np.median(np.abs(term.residuals(T_cam_base, False)[0]))) * sigma_px
-        term.sigma_px = max(sigma_px, spread)
+        e = np.abs(term.residuals(T_cam_base, False)[0][:, 0]) * sigma_px
+        spread = [1.4826 * np.median(e[a:b]) if b > a else 0.0 for a, b in zip(term.bounds[:-1], term.bounds[1:])]
+        term.sigma_px = np.maximum(sigma_px, spread)
     return term
 
 

@@ -115,7 +115,9 @@ def test_load_catalog_rejects_bad_symmetry():
 @pytest.mark.parametrize("options,word", [({"k_f": -2}, "k_f"), ({"memory_threshold_deg": -1}, "memory_threshold_deg"),
                                           ({"silhouette_starts": 0}, "silhouette_starts"),
                                           ({"silhouette_sigmas_px": ()}, "silhouette_sigmas_px"),
-                                          ({"icp_sigma_m": 0.0}, "icp_sigma_m")])
+                                          ({"icp_sigma_m": 0.0}, "icp_sigma_m"),
+                                          ({"silhouette_key_frames": -1}, "silhouette_key_frames"),
+                                          ({"silhouette_memory_m": 0.0}, "silhouette_memory_m")])
 def test_estimator_options_out_of_range_are_named(options, word):
     from feepe.estimator import FeepeOptions
 

@@ -128,6 +128,17 @@ def test_memory_pool_threshold_and_farthest_point_key_frames():
     assert [e.frame for e in pool.key_frames(rot(-60)[:3, :3], 1)] == [5]  # 150 deg away
 
 
+def test_memory_pool_admits_a_moved_end_effector_when_asked():
+    """The refinement's rule: a frame 5 deg from a pooled one joins when the end-effector moved more than
+    threshold_m; the paper's rule (no threshold_m) looks at orientation alone."""
+    found = type("F", (), {"candidates": [object()], "K": K})()
+    at = lambda deg, x: make_T(Rotation.from_euler("z", deg, degrees=True).as_matrix(), [x, 0.0, 0.0])
+    poses = [at(0, 0.0), at(5, 0.004), at(5, 0.03), at(3, 0.031)]
+    paper, moved = MemoryPool(threshold_deg=10.0), MemoryPool(threshold_deg=10.0, threshold_m=0.005)
+    assert [paper.consider(MemoryEntry(i, T, found)) for i, T in enumerate(poses)] == [True, False, False, False]
+    assert [moved.consider(MemoryEntry(i, T, found)) for i, T in enumerate(poses)] == [True, False, True, False]
+
+
 def test_consensus_picks_the_symmetry_mode_that_agrees_with_kinematics():
     rng = np.random.default_rng(4)
     T_cam_base = _pose(rng, 1.0)
