@@ -347,12 +347,15 @@ class Estimator:
         no_matches = stack([])
         opts, inner = self.opts, OptimizeOptions(max_iterations=5, min_decrease=MIN_DECREASE)
         for k, sigma in enumerate(sigmas):
-            # beside depth, the masks weigh by how well they fit: a segmenter's few-pixel errors then yield
-            # the range to depth, exact masks keep it (at the finest stage, down to min_sigma)
-            floor = opts.silhouette_min_sigma_px if clouds and k == len(sigmas) - 1 else sigma
+            # each frame's mask weighs by how well it fits (beside depth at every stage, else at the finest):
+            # a segmenter's few-pixel errors then yield the range to depth and to the better masks, exact masks
+            # keep it (beside depth at the finest stage down to min_sigma)
+            finest = k == len(sigmas) - 1
+            floor = opts.silhouette_min_sigma_px if clouds and finest else sigma
             for _ in range(opts.silhouette_rounds):
-                model = self.parts if k == len(sigmas) - 1 else self.parts.coarse  # exact at the finest stage
-                terms = [contour_term(model, T, frames, floor, step_px=max(1.0, sigma / 2), measured=bool(clouds) or k == len(sigmas) - 1)]
+                model = self.parts if finest else self.parts.coarse  # exact at the finest stage
+                terms = [contour_term(model, T, frames, floor, step_px=max(1.0, sigma / 2),
+                                      measured=bool(clouds) or finest)]
                 if clouds:
                     planes = associate(T, clouds, self.model, opts.icp_gate_m)
                     terms.append(sensor_plane_term(planes, T, opts.depth_sigma_m, opts.depth_sigma_z2))
