@@ -63,7 +63,7 @@ class FeepeOptions:
     silhouette_depth_tolerance: float = 2.0  # standard errors depth may worsen the mean contour distance by
     robot_start_frames: int = 3  # silhouette="robot": first frames that also start from the robot's depth
     silhouette_key_frames: int = 16  # key frames the refinement fits (FEEPE D's solve keeps k_f)
-    silhouette_memory_m: float = 0.005  # with the refinement, a frame whose end-effector moved this far joins the memory
+    silhouette_memory_m: float = 0.005  # with the refinement, a frame whose end-effector moved this far is a new view
     silhouette_refit_growth: float = 0.0  # new key frames refit once the memory grew by this fraction (0: each)
     depth_sigma_m: float = 0.002  # noise shape sigma_m + sigma_z2 * z^2 (m), scaled by the measured spread;
     depth_sigma_z2: float = 0.0036  # z^2 factor: Intel's D435 RMS model, subpixel 0.08 / (f 447 px x 0.05 m)

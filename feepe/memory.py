@@ -3,9 +3,10 @@
 A frame joins the pool only when its end-effector orientation is more than `threshold_deg` from every
 pooled frame (BundleTrack's rule, as in the paper). Our silhouette refinement also admits a frame whose
 end-effector moved more than `threshold_m` from every pooled frame of similar orientation: under a static
-camera a translation alone is a new view too, and the lever arm a calibration's rotation rests on. Orientations are compared through forward
-kinematics: with a static camera, the angle between two camera-frame end-effector rotations equals the
-angle between their base-frame rotations, and the latter carries no estimation error.
+camera a translation alone is a new view too, and the lever arm a calibration's rotation rests on.
+Orientations are compared through forward kinematics: with a static camera, the angle between two
+camera-frame end-effector rotations equals the angle between their base-frame rotations, and the latter
+carries no estimation error.
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ class MemoryPool:
             return False
         if self.entries:
             near = rotation_angle(self._rotations(), entry.T_base_ee[:3, :3]) <= self.threshold
-            moved = np.linalg.norm(np.stack([e.T_base_ee[:3, 3] for e in self.entries]) - entry.T_base_ee[:3, 3], axis=1)
+            positions = np.stack([e.T_base_ee[:3, 3] for e in self.entries])
+            moved = np.linalg.norm(positions - entry.T_base_ee[:3, 3], axis=1)
             if (near & (moved <= self.threshold_m)).any():
                 return False
         self.entries.append(entry)
