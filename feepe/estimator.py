@@ -256,11 +256,11 @@ class Estimator:
             T = self._align_depth(T, obs, [(T_b, f.cloud) for T_b, f in views])
         if opts.refine != "none":
             t0 = time.perf_counter()
-            k = opts.silhouette_key_frames if opts.variant in ("C", "D") else 0
-            views = [(T_base_ee, found)] + [(e.T_base_ee, e.found) for e in self.pool.key_frames(T_base_ee[:3, :3], k)]
-            clouds = [(T_b, f.cloud) for T_b, f in views] if opts.depth_in_refinement else []
+            k = opts.silhouette_key_frames if opts.variant in ("C", "D") else 0  # its own key frames, not D's
+            fitted = [(T_base_ee, found)] + [(e.T_base_ee, e.found) for e in self.pool.key_frames(T_base_ee[:3, :3], k)]
+            clouds = [(T_b, f.cloud) for T_b, f in fitted] if opts.depth_in_refinement else []
             starts = self._starts(T, T_base_ee, found)
-            T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in views], clouds)
+            T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in fitted], clouds)
             timings["refinement"] = 1e3 * (time.perf_counter() - t0)
         score = float(np.sum(reprojection_px(T, stack(frames[:1])) <= opts.single.pnp_threshold_px))
         return T, score, len(frames) - 1
