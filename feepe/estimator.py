@@ -237,9 +237,7 @@ class Estimator:
                 return None, 0.0, 0
             best = max(cands, key=lambda c: c.n_inliers)
             return best.T_cam_ee @ inv_T(T_base_ee), float(best.n_inliers), 0
-        views = [(T_base_ee, found)]
-        if opts.variant in ("C", "D"):
-            views += [(e.T_base_ee, e.found) for e in self.pool.key_frames(T_base_ee[:3, :3], opts.k_f)]
+        views = self._with_key_frames(T_base_ee, found, opts.k_f if opts.variant in ("C", "D") else 0)
         frames = [(T, f.K, f.candidates) for T, f in views]
         if not any(c for _, _, c in frames):
             return None, 0.0, 0
@@ -257,13 +255,17 @@ class Estimator:
         if opts.refine != "none":
             t0 = time.perf_counter()
             k = opts.silhouette_key_frames if opts.variant in ("C", "D") else 0  # its own key frames, not D's
-            fitted = [(T_base_ee, found)] + [(e.T_base_ee, e.found) for e in self.pool.key_frames(T_base_ee[:3, :3], k)]
+            fitted = self._with_key_frames(T_base_ee, found, k)
             clouds = [(T_b, f.cloud) for T_b, f in fitted] if opts.depth_in_refinement else []
             starts = self._starts(T, T_base_ee, found)
             T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in fitted], clouds)
             timings["refinement"] = 1e3 * (time.perf_counter() - t0)
         score = float(np.sum(reprojection_px(T, stack(frames[:1])) <= opts.single.pnp_threshold_px))
         return T, score, len(frames) - 1
+
+    def _with_key_frames(self, T_base_ee: np.ndarray, found: FrameCandidates, k: int) -> list:
+        """The current frame, then k key frames of the memory: (T_base_ee, FrameCandidates) each."""
+        return [(T_base_ee, found)] + [(e.T_base_ee, e.found) for e in self.pool.key_frames(T_base_ee[:3, :3], k)]
 
     def _align_depth(self, T: np.ndarray, obs, clouds: list) -> np.ndarray:
         """Alternate nearest-point association and the joint optimisation with the point-to-plane term."""

@@ -412,9 +412,8 @@ def mean_iou(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[
 def frame_iou(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, stride: int) -> float:
     """One frame's mask IoU on every `stride`-th pixel, stored like its contour (`_reused`)."""
     def measure() -> float:
-        seen = mv.mask[::stride, ::stride]
-        z_model = (model.coarse if stride > 1 else model).render_depth(
-            T_cam_parts, np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K, seen.shape)
+        seen, K = _strided(mv, stride)
+        z_model = (model.coarse if stride > 1 else model).render_depth(T_cam_parts, K, seen.shape)
         drawn = z_model > 0
         if mv.depth is not None:  # model pixels that something nearer covers cannot be judged
             depth = mv.depth[::stride, ::stride]
@@ -428,11 +427,11 @@ def iou_bound(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
     """An upper bound of frame_iou without rendering (for a decision that only asks whether an IoU can
     exceed a bar): the share of the mask inside the image boxes that hold each part's bounding sphere.
     What is drawn lies in the boxes, and the union of drawn and mask holds the mask."""
-    seen = mv.mask[::stride, ::stride]
+    seen, K = _strided(mv, stride)
     total = np.count_nonzero(seen)
     if not total:
         return 1.0
-    (h, w), K = seen.shape, np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K
+    h, w = seen.shape
     boxes = np.zeros(seen.shape, bool)
     for m, T in zip(model.parts, T_cam_parts):
         (x, y, z), r = T[:3, :3] @ m.centre + T[:3, 3], m.radius
@@ -445,6 +444,11 @@ def iou_bound(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
         v0, v1 = max(int(np.floor(min(vs))), 0), min(int(np.ceil(max(vs))), h - 1)
         boxes[v0:v1 + 1, u0:u1 + 1] = True  # an empty slice when the box misses the image
     return np.count_nonzero(seen & boxes) / total
+
+
+def _strided(mv: MaskView, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """The mask on every `stride`-th pixel and the intrinsics of that grid."""
+    return mv.mask[::stride, ::stride], np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K
 
 
 def _project(P: np.ndarray, K: np.ndarray) -> np.ndarray:
