@@ -36,6 +36,7 @@ SILHOUETTES = ("ee", "robot")
 IOU_STRIDE = 2  # the refinement's decisions compare mask IoUs on every second pixel
 RENDERER = "zbuffer"  # how the refinement renders masks and tests outlines (feepe/raster.py; before: Embree rays)
 MIN_DECREASE = 1e-6  # the refinement's solves stop once a step promises less than this fraction of the cost
+MIN_STEP = 1e-6  # or once a step that failed moves the pose less than this (rad and m: 1 um at the model)
 # The optimisation and the refinement multiply many small matrices (normal equations of N x 6 Jacobians,
 # N x 3 points by 3 x 3 rotations). OpenBLAS's threads cost more than they save there: a 10000 x 6 normal
 # matrix took 0.15 ms on one thread and 1.4-23 ms on two while the cores were busy. Those stages run on one.
@@ -347,7 +348,7 @@ class Estimator:
 
     def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:
         no_matches = stack([])
-        opts, inner = self.opts, OptimizeOptions(max_iterations=5, min_decrease=MIN_DECREASE)
+        opts, inner = self.opts, OptimizeOptions(max_iterations=5, min_decrease=MIN_DECREASE, min_step=MIN_STEP)
         for k, sigma in enumerate(sigmas):
             # each frame's mask weighs by how well it fits (beside depth at every stage, else at the finest):
             # a segmenter's few-pixel errors then yield the range to depth and to the better masks, exact masks

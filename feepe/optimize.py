@@ -12,8 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol, Sequence
 
+import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from kernel.transforms import transform_points
 
@@ -110,9 +110,14 @@ def _cost(blocks: list) -> float:
 def _step(T: np.ndarray, x: np.ndarray) -> np.ndarray:
     """A left perturbation: rotation vector x[:3] applied to the rotation, x[3:] added to the translation."""
     out = T.copy()
-    out[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix() @ T[:3, :3]
+    out[:3, :3] = cv2.Rodrigues(x[:3])[0] @ T[:3, :3]  # a tenth of SciPy's Rotation's per-call cost
     out[:3, 3] = T[:3, 3] + x[3:]
     return out
+
+
+def _size(x: np.ndarray) -> float:
+    """A step's size: the larger of its rotation (rad) and translation (m)."""
+    return max(np.linalg.norm(x[:3]), np.linalg.norm(x[3:]))
 
 
 @dataclass
@@ -124,6 +129,9 @@ class OptimizeOptions:
     # stop once a Gauss-Newton step predicts less than this fraction of the cost (0: never, as the paper's
     # variants run); else a converged solve keeps raising the damping through ten trials that all fail
     min_decrease: float = 0.0
+    # stop once a damped step that failed moves the pose less than this (rad and m; 0: never, as the paper's
+    # variants run): more damping only shrinks it, and a converged solve spent most of its trials so
+    min_step: float = 0.0
 
 
 def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
@@ -157,14 +165,14 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
             x = np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), -g)
             T_new = _step(T, x)
             cost_new = _cost(problem.errors(T_new)[0])
-            if cost_new <= cost or damping > 1e8:
+            if cost_new <= cost or damping > 1e8 or _size(x) < opts.min_step:
                 break
             damping *= 10.0
         if cost_new > cost:
             break
         T, cost, damping = T_new, cost_new, max(damping / 10.0, 1e-7)
         blocks, jacobians = problem.errors(T, jacobian=True)
-        if np.linalg.norm(x[:3]) < 1e-7 and np.linalg.norm(x[3:]) < 1e-7:
+        if _size(x) < 1e-7:
             break
     return T, reprojection_px(T, obs)
 

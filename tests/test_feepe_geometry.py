@@ -115,6 +115,32 @@ def test_optimisation_recovers_calibration_over_key_frames():
     assert np.median(r2d) < 1.0
 
 
+class _Misled:
+    """A residual whose Jacobian points the wrong way, as a sampled field's can at the optimum: every step
+    the model promises raises the cost. Counts its evaluations."""
+
+    def __init__(self):
+        self.evaluations = 0
+
+    def residuals(self, T, jacobian):
+        self.evaluations += 1
+        J = np.zeros((1, 1, 6))
+        J[0, 0, 4] = -1 / 1e-3
+        return np.array([[(T[1, 3] - 0.0003) / 1e-3]]), (J if jacobian else None)
+
+
+def test_optimisation_stops_raising_the_damping_once_steps_stop_mattering():
+    """min_step: a solve whose trials all fail ends once the damped step moves the pose less than 1 um,
+    not after damping 1e8; the pose is the same (no step was taken either way)."""
+    runs = {}
+    for min_step in (0.0, 1e-6):
+        term = _Misled()
+        T, _ = optimize(np.eye(4), stack([]), OptimizeOptions(min_step=min_step), [term])
+        runs[min_step] = T, term.evaluations
+    assert np.array_equal(runs[0.0][0], np.eye(4)) and np.array_equal(runs[1e-6][0], np.eye(4))
+    assert runs[1e-6][1] < runs[0.0][1]  # 9 evaluations against 15
+
+
 def test_memory_pool_threshold_and_farthest_point_key_frames():
     pool = MemoryPool(threshold_deg=10.0)
     rot = lambda deg: make_T(Rotation.from_euler("z", deg, degrees=True).as_matrix())
