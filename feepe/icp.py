@@ -63,18 +63,19 @@ def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]
               gate_m: float) -> PlaneTerms:
     """frames: (T_base_ee, observed cloud) each; each observed point pairs with its nearest model point
     within `gate_m`."""
-    base, normals, target = [], [], []
-    for T_base_ee, cloud in frames:
-        if len(cloud) == 0:
-            continue
-        in_model = transform_points(inv_T(T_cam_base @ T_base_ee), cloud)
-        dist, idx = model.tree.query(in_model, distance_upper_bound=gate_m)
-        ok = np.isfinite(dist)
-        base.append(transform_points(T_base_ee, model.points[idx[ok]]))
-        normals.append(model.normals[idx[ok]] @ T_base_ee[:3, :3].T)
-        target.append(cloud[ok])
-    if not base:
+    frames = [(T_base_ee, cloud) for T_base_ee, cloud in frames if len(cloud)]
+    if not frames:
         return PlaneTerms(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
+    in_model = [transform_points(inv_T(T_cam_base @ T_base_ee), cloud) for T_base_ee, cloud in frames]
+    dist, idx = model.tree.query(np.concatenate(in_model), distance_upper_bound=gate_m)  # one query for all
+    ends = np.cumsum([len(P) for P in in_model])
+    base, normals, target = [], [], []
+    for (T_base_ee, cloud), end in zip(frames, ends):
+        ok = np.isfinite(dist[end - len(cloud):end])
+        nearest = idx[end - len(cloud):end][ok]
+        base.append(transform_points(T_base_ee, model.points[nearest]))
+        normals.append(model.normals[nearest] @ T_base_ee[:3, :3].T)
+        target.append(cloud[ok])
     return PlaneTerms(np.concatenate(base), np.concatenate(normals), np.concatenate(target))
 
 
