@@ -312,17 +312,22 @@ def _contour_rows(points, K, T, field, sigma, e, J):
         v = min(max(fy * y / z + cy, 0.0), h - 1.001)
         u0, v0 = int(u), int(v)
         a, b = u - u0, v - v0
-        f = np.empty(3)
-        for k in range(3 if J.shape[0] else 1):
-            f[k] = ((1 - a) * (1 - b) * field[v0, u0, k] + a * (1 - b) * field[v0, u0 + 1, k]
-                    + (1 - a) * b * field[v0 + 1, u0, k] + a * b * field[v0 + 1, u0 + 1, k])
-        e[i, 0] = f[0] / sigma
+        e[i, 0] = _bilinear(field, u0, v0, a, b, 0) / sigma
         if J.shape[0]:
-            gx = f[1] * fx / z / sigma  # the field's image gradient through the projection's derivative
-            gy = f[2] * fy / z / sigma
-            gz = -(f[1] * fx * x + f[2] * fy * y) / (z * z) / sigma
+            du, dv = _bilinear(field, u0, v0, a, b, 1), _bilinear(field, u0, v0, a, b, 2)
+            gx = du * fx / z / sigma  # the field's image gradient through the projection's derivative
+            gy = dv * fy / z / sigma
+            gz = -(du * fx * x + dv * fy * y) / (z * z) / sigma
             J[i, 0, 0], J[i, 0, 1], J[i, 0, 2] = qy * gz - qz * gy, qz * gx - qx * gz, qx * gy - qy * gx
             J[i, 0, 3], J[i, 0, 4], J[i, 0, 5] = gx, gy, gz
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _bilinear(field, u0, v0, a, b, k):
+    """Channel k of the field between the four pixels from (u0, v0), at fractions (a, b). A scalar, not a
+    small array per point: allocating one cost more than the sampling."""
+    return ((1 - a) * (1 - b) * field[v0, u0, k] + a * (1 - b) * field[v0, u0 + 1, k]
+            + (1 - a) * b * field[v0 + 1, u0, k] + a * b * field[v0 + 1, u0 + 1, k])
 
 
 def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
