@@ -37,26 +37,35 @@ def _clip(P, face, poly):
     return n
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def _pixels(P, fx, fy, cx, cy):
     uv = np.empty((P.shape[0], 2))
-    for i in range(P.shape[0]):
+    for i in numba.prange(P.shape[0]):
         z = max(P[i, 2], NEAR_M)
         uv[i, 0], uv[i, 1] = fx * P[i, 0] / z + cx, fy * P[i, 1] / z + cy
     return uv
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def _project(P, faces, fx, fy, cx, cy):
     """Image triangles (T, 3, 2) and their corners' depths (T, 3): a face wholly in front of the near plane
-    stays one triangle, one cut by it becomes one or two (a fan over the clipped polygon)."""
+    stays one triangle, one cut by it becomes one or two (a fan over the clipped polygon). When no face is
+    cut (the usual case), face f is triangle f, written on both cores."""
     uv = _pixels(P, fx, fy, cx, cy)
-    tri, tz = np.empty((2 * faces.shape[0], 3, 2)), np.empty((2 * faces.shape[0], 3))
+    front = np.empty(faces.shape[0], np.bool_)
+    for f in numba.prange(faces.shape[0]):
+        front[f] = P[faces[f, 0], 2] >= NEAR_M and P[faces[f, 1], 2] >= NEAR_M and P[faces[f, 2], 2] >= NEAR_M
+    n_cut = faces.shape[0] - np.count_nonzero(front)
+    tri, tz = np.empty((faces.shape[0] + n_cut, 3, 2)), np.empty((faces.shape[0] + n_cut, 3))
+    if n_cut == 0:
+        for f in numba.prange(faces.shape[0]):
+            for j in range(3):
+                tri[f, j, 0], tri[f, j, 1], tz[f, j] = uv[faces[f, j], 0], uv[faces[f, j], 1], P[faces[f, j], 2]
+        return tri, tz
     poly = np.empty((4, 3))
     m = 0
     for f in range(faces.shape[0]):
-        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-        if P[a, 2] >= NEAR_M and P[b, 2] >= NEAR_M and P[c, 2] >= NEAR_M:
+        if front[f]:
             for j in range(3):
                 tri[m, j, 0], tri[m, j, 1], tz[m, j] = uv[faces[f, j], 0], uv[faces[f, j], 1], P[faces[f, j], 2]
             m += 1
@@ -122,11 +131,12 @@ def _zbuffer(tri, tz, out):
                     out[v, u] = d
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def _cover(tri, out):
-    """Image triangles into the mask `out` (pixel centres, edges included)."""
+    """Image triangles into the mask `out` (pixel centres, edges included), on both cores: two triangles may
+    set one pixel at once, and both set it True."""
     h, w = out.shape
-    for i in range(tri.shape[0]):
+    for i in numba.prange(tri.shape[0]):
         u0, u1, v0, v1 = _pixel_box(tri[i], h, w)
         for v in range(v0, v1 + 1):
             for u in range(u0, u1 + 1):
@@ -134,15 +144,28 @@ def _cover(tri, out):
                     out[v, u] = True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def _covered(tri, uv, h, w, cell):
-    """For each point, whether a triangle covers it: the triangles that reach an image cell holding a point
-    are binned into those cells (CSR lists), and each point tests its cell's, by bounding box first. A summed
-    table of the wanted cells passes over the many triangles that reach none in four lookups each."""
+    """For each point, whether a triangle covers it, on both cores: the points split into two bands of
+    image rows with half of them each, and each band answered by `_covered_band`."""
+    rows = np.sort(np.array([uv[j, 1] for j in range(uv.shape[0]) if 0.0 <= uv[j, 1] < h]))
+    split = int(rows[len(rows) // 2] / cell) if len(rows) else 0
+    bands = np.array([0, split, (h + cell - 1) // cell])
+    out = np.zeros(uv.shape[0], np.bool_)
+    for b in numba.prange(2):
+        _covered_band(tri, uv, h, w, cell, bands[b], bands[b + 1], out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _covered_band(tri, uv, h, w, cell, row_from, row_to, out):
+    """`out` for the points in cell rows [row_from, row_to): the triangles that reach an image cell holding a
+    point are binned into those cells (CSR lists), and each point tests its cell's, by bounding box first. A
+    summed table of the wanted cells passes over the many triangles that reach none in four lookups each."""
     ch, cw = (h + cell - 1) // cell, (w + cell - 1) // cell
     wanted = np.zeros(ch * cw, np.bool_)
     for j in range(uv.shape[0]):
-        if 0.0 <= uv[j, 0] < w and 0.0 <= uv[j, 1] < h:
+        if 0.0 <= uv[j, 0] < w and 0.0 <= uv[j, 1] < h and row_from <= int(uv[j, 1] / cell) < row_to:
             wanted[int(uv[j, 1] / cell) * cw + int(uv[j, 0] / cell)] = True
     table = np.zeros((ch + 1, cw + 1), np.int32)  # table[r, c]: wanted cells in rows < r, columns < c
     for cv in range(ch):
@@ -181,10 +204,9 @@ def _covered(tri, uv, h, w, cell):
                 if wanted[c]:
                     ids[fill[c]] = k
                     fill[c] += 1
-    out = np.zeros(uv.shape[0], np.bool_)
     for j in range(uv.shape[0]):
         u, v = uv[j, 0], uv[j, 1]
-        if not (0.0 <= u < w and 0.0 <= v < h):
+        if not (0.0 <= u < w and 0.0 <= v < h and row_from <= int(v / cell) < row_to):
             continue
         c = int(v / cell) * cw + int(u / cell)
         for q in range(start[c], start[c + 1]):
@@ -192,7 +214,6 @@ def _covered(tri, uv, h, w, cell):
             if box[k, 0] <= u <= box[k, 1] and box[k, 2] <= v <= box[k, 3] and _inside(tri[near[k]], u, v):
                 out[j] = True
                 break
-    return out
 
 
 def clustered(vertices: np.ndarray, faces: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:

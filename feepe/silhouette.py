@@ -202,56 +202,70 @@ class PartsSilhouette:
                           *self._spheres, float(max(K[0, 0], K[1, 1])))
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def _rim_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step_px, probe_px):
-    """SilhouetteModel.candidates in one pass over the edges (two: count, then fill), in scalars: a small
-    array per edge would cost more than the edge's arithmetic."""
+    """SilhouetteModel.candidates over the edges on both cores: each edge's samples counted, then written
+    at their offsets, so the output keeps the edges' order."""
+    counts = np.zeros(edges.shape[0] + 1, np.int64)
+    P_out, probe_out = np.empty((0, 3)), np.empty((0, 2))
+    for e in numba.prange(edges.shape[0]):
+        counts[e + 1] = _edge_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step_px,
+                                      probe_px, e, P_out, probe_out, -1)
+    starts = np.cumsum(counts)
+    P_out, probe_out = np.empty((starts[-1], 3)), np.empty((starts[-1], 2))
+    for e in numba.prange(edges.shape[0]):
+        if counts[e + 1]:
+            _edge_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step_px, probe_px, e,
+                          P_out, probe_out, starts[e])
+    return P_out, probe_out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _edge_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step_px, probe_px, e, P_out,
+                  probe_out, at):
+    """Edge e's samples, in scalars (a small array per edge would cost more than the edge's arithmetic):
+    their number, and with `at` >= 0 the samples and probes written from row `at`."""
     h, w = deep.shape
     fx, fy, cx, cy = k[0], k[1], k[2], k[3]
-    P_out, probe_out = np.empty((0, 3)), np.empty((0, 2))
-    for fill in range(2):
-        m = 0
-        for e in range(edges.shape[0]):
-            s1 = o1[e] > n1[e, 0] * eye[0] + n1[e, 1] * eye[1] + n1[e, 2] * eye[2]
-            s2 = o2[e] > n2[e, 0] * eye[0] + n2[e, 1] * eye[1] + n2[e, 2] * eye[2]
-            if s1 == s2:
-                continue
-            i, j = edges[e, 0], edges[e, 1]
-            xa, ya, za = _to_camera(T, V[i, 0], V[i, 1], V[i, 2])
-            xb, yb, zb = _to_camera(T, V[j, 0], V[j, 1], V[j, 2])
-            if not (za > NEAR_M and zb > NEAR_M):
-                continue
-            ua, va, ub, vb = fx * xa / za + cx, fy * ya / za + cy, fx * xb / zb + cx, fy * yb / zb + cy
-            if not (_near(deep, ua, va) or _near(deep, ub, vb) or _near(deep, 0.5 * (ua + ub), 0.5 * (va + vb))):
-                continue
-            length = min(np.sqrt((ub - ua) ** 2 + (vb - va) ** 2), h + w)  # longer edges leave the image
-            n = max(1, int(np.ceil(length / step_px)))
-            norm = max(np.sqrt(outward[e, 0] ** 2 + outward[e, 1] ** 2 + outward[e, 2] ** 2), 1e-12)
-            nx, ny, nz = 1e-3 * outward[e, 0] / norm, 1e-3 * outward[e, 1] / norm, 1e-3 * outward[e, 2] / norm
-            tx, ty, tz = _to_camera(T, nx, ny, nz, 0.0)  # a 1 mm step along the normal, turned into the camera
-            for q in range(n):
-                f = (q + 0.5) / n
-                px = V[i, 0] + f * (V[j, 0] - V[i, 0])
-                py = V[i, 1] + f * (V[j, 1] - V[i, 1])
-                pz = V[i, 2] + f * (V[j, 2] - V[i, 2])
-                x, y, z = _to_camera(T, px, py, pz)
-                if z <= 0.0:
-                    continue
-                u, v = fx * x / z + cx, fy * y / z + cy
-                if not (BORDER_PX <= u <= w - 1 - BORDER_PX and BORDER_PX <= v <= h - 1 - BORDER_PX):
-                    continue
-                if not _near(inner, u, v):
-                    continue
-                if fill:  # the probe: the image direction away from the silhouette, the normal projected
-                    du = fx * (x + tx) / (z + tz) + cx - u
-                    dv = fy * (y + ty) / (z + tz) + cy - v
-                    d = max(np.sqrt(du * du + dv * dv), 1e-12)
-                    P_out[m, 0], P_out[m, 1], P_out[m, 2] = px, py, pz
-                    probe_out[m, 0], probe_out[m, 1] = u + probe_px * du / d, v + probe_px * dv / d
-                m += 1
-        if not fill:
-            P_out, probe_out = np.empty((m, 3)), np.empty((m, 2))
-    return P_out, probe_out
+    s1 = o1[e] > n1[e, 0] * eye[0] + n1[e, 1] * eye[1] + n1[e, 2] * eye[2]
+    s2 = o2[e] > n2[e, 0] * eye[0] + n2[e, 1] * eye[1] + n2[e, 2] * eye[2]
+    if s1 == s2:
+        return 0
+    i, j = edges[e, 0], edges[e, 1]
+    xa, ya, za = _to_camera(T, V[i, 0], V[i, 1], V[i, 2])
+    xb, yb, zb = _to_camera(T, V[j, 0], V[j, 1], V[j, 2])
+    if not (za > NEAR_M and zb > NEAR_M):
+        return 0
+    ua, va, ub, vb = fx * xa / za + cx, fy * ya / za + cy, fx * xb / zb + cx, fy * yb / zb + cy
+    if not (_near(deep, ua, va) or _near(deep, ub, vb) or _near(deep, 0.5 * (ua + ub), 0.5 * (va + vb))):
+        return 0
+    length = min(np.sqrt((ub - ua) ** 2 + (vb - va) ** 2), h + w)  # longer edges leave the image
+    n = max(1, int(np.ceil(length / step_px)))
+    norm = max(np.sqrt(outward[e, 0] ** 2 + outward[e, 1] ** 2 + outward[e, 2] ** 2), 1e-12)
+    nx, ny, nz = 1e-3 * outward[e, 0] / norm, 1e-3 * outward[e, 1] / norm, 1e-3 * outward[e, 2] / norm
+    tx, ty, tz = _to_camera(T, nx, ny, nz, 0.0)  # a 1 mm step along the normal, turned into the camera
+    m = 0
+    for q in range(n):
+        f = (q + 0.5) / n
+        px = V[i, 0] + f * (V[j, 0] - V[i, 0])
+        py = V[i, 1] + f * (V[j, 1] - V[i, 1])
+        pz = V[i, 2] + f * (V[j, 2] - V[i, 2])
+        x, y, z = _to_camera(T, px, py, pz)
+        if z <= 0.0:
+            continue
+        u, v = fx * x / z + cx, fy * y / z + cy
+        if not (BORDER_PX <= u <= w - 1 - BORDER_PX and BORDER_PX <= v <= h - 1 - BORDER_PX):
+            continue
+        if not _near(inner, u, v):
+            continue
+        if at >= 0:  # the probe: the image direction away from the silhouette, the normal projected
+            du = fx * (x + tx) / (z + tz) + cx - u
+            dv = fy * (y + ty) / (z + tz) + cy - v
+            d = max(np.sqrt(du * du + dv * dv), 1e-12)
+            P_out[at + m, 0], P_out[at + m, 1], P_out[at + m, 2] = px, py, pz
+            probe_out[at + m, 0], probe_out[at + m, 1] = u + probe_px * du / d, v + probe_px * dv / d
+        m += 1
+    return m
 
 
 @numba.njit(cache=True, nogil=True)
