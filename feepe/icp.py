@@ -13,12 +13,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+import numba
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
 from feepe.depth import backproject
-from feepe.optimize import row_jacobian
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
 
@@ -85,16 +85,34 @@ class PlaneTerm:
 
     def __init__(self, planes: PlaneTerms, sigma_m: float | np.ndarray):
         self.planes = planes
-        self.inv_sigma = np.broadcast_to(1.0 / np.asarray(sigma_m, dtype=float), len(planes.target_cam))
+        self.inv_sigma = np.broadcast_to(1.0 / np.asarray(sigma_m, dtype=float), len(planes.target_cam)).copy()
 
     def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        pl = self.planes
-        Q = pl.base_points @ T_cam_base[:3, :3].T
-        n = pl.base_normals @ T_cam_base[:3, :3].T
-        e = (np.sum(n * (pl.target_cam - Q - T_cam_base[:3, 3]), 1) * self.inv_sigma)[:, None]
-        if not jacobian:
-            return e, None
-        return e, row_jacobian(Q, -n * self.inv_sigma[:, None])
+        pl, n = self.planes, len(self.inv_sigma)
+        e, J = np.empty((n, 1)), np.empty((n if jacobian else 0, 1, 6))
+        _plane_rows(*(np.ascontiguousarray(a, dtype=float) for a in (pl.base_points, pl.base_normals, pl.target_cam,
+                                                                     self.inv_sigma, T_cam_base)), e, J)
+        return e, (J if jacobian else None)
+
+
+@numba.njit(cache=True, nogil=True)
+def _plane_rows(points, normals, target, inv_sigma, T, e, J):
+    """PlaneTerm's rows in one pass: n . (target - R p - t) over sigma, with the normal turned by R and held
+    fixed and, when J has rows, its Jacobian in the left perturbation: g @ optimize.point_jacobian(Q) written
+    out, [Q x g, g] with g = -n / sigma."""
+    for i in range(points.shape[0]):
+        qx = T[0, 0] * points[i, 0] + T[0, 1] * points[i, 1] + T[0, 2] * points[i, 2]
+        qy = T[1, 0] * points[i, 0] + T[1, 1] * points[i, 1] + T[1, 2] * points[i, 2]
+        qz = T[2, 0] * points[i, 0] + T[2, 1] * points[i, 1] + T[2, 2] * points[i, 2]
+        nx = T[0, 0] * normals[i, 0] + T[0, 1] * normals[i, 1] + T[0, 2] * normals[i, 2]
+        ny = T[1, 0] * normals[i, 0] + T[1, 1] * normals[i, 1] + T[1, 2] * normals[i, 2]
+        nz = T[2, 0] * normals[i, 0] + T[2, 1] * normals[i, 1] + T[2, 2] * normals[i, 2]
+        e[i, 0] = (nx * (target[i, 0] - qx - T[0, 3]) + ny * (target[i, 1] - qy - T[1, 3])
+                   + nz * (target[i, 2] - qz - T[2, 3])) * inv_sigma[i]
+        if J.shape[0]:
+            gx, gy, gz = -nx * inv_sigma[i], -ny * inv_sigma[i], -nz * inv_sigma[i]
+            J[i, 0, 0], J[i, 0, 1], J[i, 0, 2] = qy * gz - qz * gy, qz * gx - qx * gz, qx * gy - qy * gx
+            J[i, 0, 3], J[i, 0, 4], J[i, 0, 5] = gx, gy, gz
 
 
 def sensor_plane_term(planes: PlaneTerms, T_cam_base: np.ndarray, sigma_0: float, k_z2: float,

@@ -54,12 +54,6 @@ def point_jacobian(Q: np.ndarray) -> np.ndarray:
     return np.concatenate([_skew_rows(Q), np.broadcast_to(np.eye(3), (len(Q), 3, 3))], 2)
 
 
-def row_jacobian(Q: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """(N, 1, 6) Jacobian of scalar residuals whose gradient in the camera point is g (N, 3), in the left
-    perturbation of `_step`: g @ point_jacobian(Q) without forming the (N, 3, 6) stack."""
-    return np.concatenate([np.cross(Q, g), g], 1)[:, None, :]
-
-
 def project(P: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera points (N, 3) with per-point (fx, fy, cx, cy) (N, 4) -> pixels (N, 2) and d uv / dP (N, 2, 3)."""
     z = np.maximum(P[:, 2], 1e-6)

@@ -314,7 +314,8 @@ class SilhouetteTerm:
 @numba.njit(cache=True, nogil=True)
 def _contour_rows(points, K, T, field, sigma, e, J):
     """SilhouetteTerm's rows for one frame's points: the signed distance at the projection over sigma and,
-    when J has rows, its Jacobian in the left perturbation (optimize.row_jacobian, written out)."""
+    when J has rows, its Jacobian in the left perturbation (g @ optimize.point_jacobian(Q) written out, g the
+    field's gradient through the projection)."""
     h, w = field.shape[0], field.shape[1]
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     for i in range(points.shape[0]):
