@@ -299,16 +299,27 @@ class SilhouetteTerm:
     def __init__(self, base_points: np.ndarray, view: np.ndarray, views: list[MaskView],
                  sigma_px: float | np.ndarray):
         order = np.argsort(view, kind="stable")  # each view's points in one slice
-        self.base_points, self.view, self.views = base_points[order], view[order], views
+        self.base_points, self.view = base_points[order], view[order]
         self.sigma_px = np.broadcast_to(np.asarray(sigma_px, float), (len(views),)).copy()
         self.bounds = np.searchsorted(self.view, np.arange(len(views) + 1))
+        # the frames' fields and intrinsics as numba reads them, so that one call evaluates every frame
+        self._fields = numba.typed.List([v.field for v in views]) if views else None
+        self._K = np.array([v.K for v in views], float).reshape(-1, 3, 3)
 
     def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
         e, J = np.empty((len(self.view), 1)), np.empty((len(self.view), 1, 6)) if jacobian else np.empty((0, 1, 6))
-        T = np.ascontiguousarray(T_cam_base, dtype=float)
-        for v, s, a, b in zip(self.views, self.sigma_px, self.bounds[:-1], self.bounds[1:]):
-            _contour_rows(self.base_points[a:b], v.K, T, v.field, s, e[a:b], J[a:b])
+        if self._fields is not None:
+            T = np.ascontiguousarray(T_cam_base, dtype=float)
+            _term_rows(self.base_points, self.bounds, self._K, self._fields, T, self.sigma_px, e, J)
         return e, (J if jacobian else None)
+
+
+@numba.njit(cache=True, nogil=True)
+def _term_rows(points, bounds, Ks, fields, T, sigmas, e, J):
+    """SilhouetteTerm.residuals over its frames in one call (frame i's points are rows bounds[i]:bounds[i+1])."""
+    for i in range(len(fields)):
+        a, b = bounds[i], bounds[i + 1]
+        _contour_rows(points[a:b], Ks[i], T, fields[i], sigmas[i], e[a:b], J[a:b])
 
 
 @numba.njit(cache=True, nogil=True)
