@@ -59,15 +59,13 @@ def _project(P, faces, fx, fy, cx, cy):
     tri, tz = np.empty((faces.shape[0] + n_cut, 3, 2)), np.empty((faces.shape[0] + n_cut, 3))
     if n_cut == 0:
         for f in numba.prange(faces.shape[0]):
-            for j in range(3):
-                tri[f, j, 0], tri[f, j, 1], tz[f, j] = uv[faces[f, j], 0], uv[faces[f, j], 1], P[faces[f, j], 2]
+            _whole_face(uv, P, faces, f, tri, tz, f)
         return tri, tz
     poly = np.empty((4, 3))
     m = 0
     for f in range(faces.shape[0]):
         if front[f]:
-            for j in range(3):
-                tri[m, j, 0], tri[m, j, 1], tz[m, j] = uv[faces[f, j], 0], uv[faces[f, j], 1], P[faces[f, j], 2]
+            _whole_face(uv, P, faces, f, tri, tz, m)
             m += 1
             continue
         n = _clip(P, faces[f], poly)
@@ -78,6 +76,13 @@ def _project(P, faces, fx, fy, cx, cy):
                 tz[m, j] = poly[i, 2]
             m += 1
     return tri[:m], tz[:m]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _whole_face(uv, P, faces, f, tri, tz, m):
+    """Face f, wholly in front of the near plane, as image triangle m."""
+    for j in range(3):
+        tri[m, j, 0], tri[m, j, 1], tz[m, j] = uv[faces[f, j], 0], uv[faces[f, j], 1], P[faces[f, j], 2]
 
 
 @numba.njit(cache=True, nogil=True)
