@@ -19,6 +19,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from feepe.depth import backproject
+from feepe.optimize import jacobian_row
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
 
@@ -98,8 +99,7 @@ class PlaneTerm:
 @numba.njit(cache=True, nogil=True)
 def _plane_rows(points, normals, target, inv_sigma, T, e, J):
     """PlaneTerm's rows in one pass: n . (target - R p - t) over sigma, with the normal turned by R and held
-    fixed and, when J has rows, its Jacobian in the left perturbation: g @ optimize.point_jacobian(Q) written
-    out, [Q x g, g] with g = -n / sigma."""
+    fixed and, when J has rows, its Jacobian (optimize.jacobian_row with g = -n / sigma)."""
     for i in range(points.shape[0]):
         qx = T[0, 0] * points[i, 0] + T[0, 1] * points[i, 1] + T[0, 2] * points[i, 2]
         qy = T[1, 0] * points[i, 0] + T[1, 1] * points[i, 1] + T[1, 2] * points[i, 2]
@@ -110,9 +110,7 @@ def _plane_rows(points, normals, target, inv_sigma, T, e, J):
         e[i, 0] = (nx * (target[i, 0] - qx - T[0, 3]) + ny * (target[i, 1] - qy - T[1, 3])
                    + nz * (target[i, 2] - qz - T[2, 3])) * inv_sigma[i]
         if J.shape[0]:
-            gx, gy, gz = -nx * inv_sigma[i], -ny * inv_sigma[i], -nz * inv_sigma[i]
-            J[i, 0, 0], J[i, 0, 1], J[i, 0, 2] = qy * gz - qz * gy, qz * gx - qx * gz, qx * gy - qy * gx
-            J[i, 0, 3], J[i, 0, 4], J[i, 0, 5] = gx, gy, gz
+            jacobian_row(J, i, qx, qy, qz, -nx * inv_sigma[i], -ny * inv_sigma[i], -nz * inv_sigma[i])
 
 
 def sensor_plane_term(planes: PlaneTerms, T_cam_base: np.ndarray, sigma_0: float, k_z2: float,

@@ -54,6 +54,14 @@ def point_jacobian(Q: np.ndarray) -> np.ndarray:
     return np.concatenate([_skew_rows(Q), np.broadcast_to(np.eye(3), (len(Q), 3, 3))], 2)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def jacobian_row(J, i, qx, qy, qz, gx, gy, gz):
+    """Row i of an (N, 1, 6) Jacobian in the left perturbation of `_step`, for a scalar residual whose gradient
+    in the camera point is g, at the rotated model point Q: g @ point_jacobian(Q) = [Q x g, g], in scalars."""
+    J[i, 0, 0], J[i, 0, 1], J[i, 0, 2] = qy * gz - qz * gy, qz * gx - qx * gz, qx * gy - qy * gx
+    J[i, 0, 3], J[i, 0, 4], J[i, 0, 5] = gx, gy, gz
+
+
 def project(P: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera points (N, 3) with per-point (fx, fy, cx, cy) (N, 4) -> pixels (N, 2) and d uv / dP (N, 2, 3)."""
     z = np.maximum(P[:, 2], 1e-6)

@@ -22,6 +22,7 @@ import trimesh
 
 from feepe import raster
 from feepe.depth import depth_at
+from feepe.optimize import jacobian_row
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
 
@@ -325,8 +326,7 @@ def _term_rows(points, bounds, Ks, fields, T, sigmas, e, J):
 @numba.njit(cache=True, nogil=True)
 def _contour_rows(points, K, T, field, sigma, e, J):
     """SilhouetteTerm's rows for one frame's points: the signed distance at the projection over sigma and,
-    when J has rows, its Jacobian in the left perturbation (g @ optimize.point_jacobian(Q) written out, g the
-    field's gradient through the projection)."""
+    when J has rows, its Jacobian (optimize.jacobian_row, g the field's gradient through the projection)."""
     h, w = field.shape[0], field.shape[1]
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     for i in range(points.shape[0]):
@@ -344,8 +344,7 @@ def _contour_rows(points, K, T, field, sigma, e, J):
             gx = du * fx / z / sigma  # the field's image gradient through the projection's derivative
             gy = dv * fy / z / sigma
             gz = -(du * fx * x + dv * fy * y) / (z * z) / sigma
-            J[i, 0, 0], J[i, 0, 1], J[i, 0, 2] = qy * gz - qz * gy, qz * gx - qx * gz, qx * gy - qy * gx
-            J[i, 0, 3], J[i, 0, 4], J[i, 0, 5] = gx, gy, gz
+            jacobian_row(J, i, qx, qy, qz, gx, gy, gz)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
