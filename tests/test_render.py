@@ -203,7 +203,7 @@ def _frames_written(out: Path) -> int:
 
 @pytest.fixture(scope="module")
 def stop_reference(tmp_path_factory, assets):
-    out = tmp_path_factory.mktemp("four")
+    out = tmp_path_factory.mktemp("stop")
     proc = _render(out, "--frames", str(STOP_FRAMES), "--robots", CONFIGS[1], "--workers", "2")
     assert proc.returncode == 0, proc.stderr[-2000:]
     return out
@@ -218,11 +218,14 @@ def test_a_stopped_render_stops_every_worker_and_resumes(stop_reference, tmp_pat
     out = tmp_path / "stopped"
     cmd = [sys.executable, "-m", "syneepose", "render", "--preset", "mini", "--out", str(out), *TINY,
            "--frames", str(STOP_FRAMES), "--robots", CONFIGS[1], "--workers", "2"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    # as from a terminal's foreground: a shell starts background jobs (and so `make test &`) with Ctrl-C
+    # ignored, and a program started so ignores it too (the render then ran on to its end and exited 0)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 120
     while time.time() < deadline and not _frames_written(out):
         time.sleep(0.05)
-    # Frozen mid-run, so the signal cannot arrive after the last frame (it did once, as the run exited 0).
+    # frozen mid-run, so the signal cannot arrive after the last frame
     os.killpg(proc.pid, signal.SIGSTOP)
     assert len(_group(proc.pid)) >= 2 and _frames_written(out) < STOP_FRAMES  # the render and its worker, mid-run
     t0 = time.time()
