@@ -3,7 +3,6 @@
 Tiny renders (64x48, 2 samples) through the real CLI, one worker process per segment.
 """
 
-import contextlib
 import json
 import os
 import signal
@@ -194,44 +193,34 @@ def _group(pgid: int) -> list[int]:
     return pids
 
 
-STOP_FRAMES = 8  # a tiny frame takes about 0.2 s: after the first lands, the rest leave time to stop the run
-
-
-def _frames_written(out: Path) -> int:
-    return sum(len(json.loads(p.read_text() or "{}")) for p in out.glob("test/*/scene_gt.json"))
-
-
 @pytest.fixture(scope="module")
-def stop_reference(tmp_path_factory, assets):
-    out = tmp_path_factory.mktemp("stop")
-    proc = _render(out, "--frames", str(STOP_FRAMES), "--robots", CONFIGS[1], "--workers", "2")
+def four_frames(tmp_path_factory, assets):
+    out = tmp_path_factory.mktemp("four")
+    proc = _render(out, "--frames", "4", "--robots", CONFIGS[1], "--workers", "2")
     assert proc.returncode == 0, proc.stderr[-2000:]
     return out
 
 
 @pytest.mark.parametrize("sig,whom", [(signal.SIGINT, "group"), (signal.SIGTERM, "main"), (signal.SIGKILL, "main")],
                          ids=["ctrl-c", "sigterm", "kill-9-main"])
-def test_a_stopped_render_stops_every_worker_and_resumes(stop_reference, tmp_path, sig, whom):
+def test_a_stopped_render_stops_every_worker_and_resumes(four_frames, tmp_path, sig, whom):
     """Ctrl-C (the terminal signals the whole group), a scheduler's SIGTERM to the main process, or the main
     process killed outright: within 5 s no worker renders on, only whole frames stay, and a rerun ends
     with the files of an uninterrupted run."""
     out = tmp_path / "stopped"
     cmd = [sys.executable, "-m", "syneepose", "render", "--preset", "mini", "--out", str(out), *TINY,
-           "--frames", str(STOP_FRAMES), "--robots", CONFIGS[1], "--workers", "2"]
+           "--frames", "4", "--robots", CONFIGS[1], "--workers", "2"]
     # as from a terminal's foreground: a shell starts background jobs (and so `make test &`) with Ctrl-C
     # ignored, and a program started so ignores it too (the render then ran on to its end and exited 0)
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 120
-    while time.time() < deadline and not _frames_written(out):
+    while time.time() < deadline and not any(json.loads(p.read_text() or "{}")
+                                              for p in out.glob("test/*/scene_gt.json")):
         time.sleep(0.05)
-    # frozen mid-run, so the signal cannot arrive after the last frame
-    os.killpg(proc.pid, signal.SIGSTOP)
-    assert len(_group(proc.pid)) >= 2 and _frames_written(out) < STOP_FRAMES  # the render and its worker, mid-run
+    assert len(_group(proc.pid)) >= 2  # the render and its worker
     t0 = time.time()
     os.killpg(proc.pid, sig) if whom == "group" else os.kill(proc.pid, sig)
-    with contextlib.suppress(ProcessLookupError):  # none left after kill -9 of the main process
-        os.killpg(proc.pid, signal.SIGCONT)
     proc.wait(timeout=5)
     while _group(proc.pid) and time.time() - t0 < 5:
         time.sleep(0.05)
@@ -240,9 +229,9 @@ def test_a_stopped_render_stops_every_worker_and_resumes(stop_reference, tmp_pat
         assert proc.returncode == 130 and proc.stderr.read().decode().strip().endswith("interrupted")
         assert not [p for p in out.rglob("*") if ".tmp" in p.name or p.name.startswith("tmp")]
     [scene] = list(split_dir(out).iterdir())
-    assert len(json.loads((scene / "scene_gt.json").read_text())) < STOP_FRAMES
+    assert len(json.loads((scene / "scene_gt.json").read_text())) < 4
     assert subprocess.run(cmd, capture_output=True).returncode == 0
-    ref = split_dir(stop_reference) / scene.name
+    ref = split_dir(four_frames) / scene.name
     for name in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_gt_coco.json", "scene_robot.json"):
         assert (scene / name).read_text() == (ref / name).read_text(), name
     for folder in ("depth", "mask", "mask_visib", "robot_mask_visib"):
