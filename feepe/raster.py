@@ -165,21 +165,30 @@ def _covered(tri, uv, h, w, cell):
 @numba.njit(cache=True, nogil=True)
 def _covered_band(tri, uv, h, w, cell, row_from, row_to, out):
     """`out` for the points in cell rows [row_from, row_to): the triangles that reach an image cell holding a
-    point are binned into those cells (CSR lists), and each point tests its cell's, by bounding box first. A
-    summed table of the wanted cells passes over the many triangles that reach none in four lookups each."""
-    ch, cw = (h + cell - 1) // cell, (w + cell - 1) // cell
-    wanted = np.zeros(ch * cw, np.bool_)
+    point are binned into those cells (CSR lists), and each point tests its cell's, by bounding box first. The
+    cells are those of the points' bounding box, not the image's (an outline spans a small part of it), and a
+    summed table of the wanted ones passes over the many triangles that reach none in four lookups each."""
+    cw = (w + cell - 1) // cell
+    r_lo, r_hi, c_lo, c_hi = row_to, row_from - 1, cw, -1  # the points' cells' bounding box
     for j in range(uv.shape[0]):
         if 0.0 <= uv[j, 0] < w and 0.0 <= uv[j, 1] < h and row_from <= int(uv[j, 1] / cell) < row_to:
-            wanted[int(uv[j, 1] / cell) * cw + int(uv[j, 0] / cell)] = True
-    table = np.zeros((ch + 1, cw + 1), np.int32)  # table[r, c]: wanted cells in rows < r, columns < c
-    for cv in range(ch):
-        for cu in range(cw):
-            table[cv + 1, cu + 1] = table[cv, cu + 1] + table[cv + 1, cu] - table[cv, cu] + wanted[cv * cw + cu]
+            r, c = int(uv[j, 1] / cell), int(uv[j, 0] / cell)
+            r_lo, r_hi, c_lo, c_hi = min(r_lo, r), max(r_hi, r), min(c_lo, c), max(c_hi, c)
+    if r_hi < r_lo:
+        return
+    bh, bw = r_hi - r_lo + 1, c_hi - c_lo + 1
+    wanted = np.zeros(bh * bw, np.bool_)  # box cells, row-major
+    for j in range(uv.shape[0]):
+        if 0.0 <= uv[j, 0] < w and 0.0 <= uv[j, 1] < h and row_from <= int(uv[j, 1] / cell) < row_to:
+            wanted[(int(uv[j, 1] / cell) - r_lo) * bw + int(uv[j, 0] / cell) - c_lo] = True
+    table = np.zeros((bh + 1, bw + 1), np.int32)  # table[r, c]: wanted box cells in rows < r, columns < c
+    for cv in range(bh):
+        for cu in range(bw):
+            table[cv + 1, cu + 1] = table[cv, cu + 1] + table[cv + 1, cu] - table[cv, cu] + wanted[cv * bw + cu]
     near = np.empty(tri.shape[0], np.int64)  # the triangles that reach a wanted cell, and their boxes:
     box = np.empty((tri.shape[0], 4))  # rows written only for those (of a fine mesh, a few)
-    cells = np.empty((tri.shape[0], 4), np.int64)  # first and last cell column, first and last row
-    count = np.zeros(ch * cw + 1, np.int64)
+    cells = np.empty((tri.shape[0], 4), np.int64)  # first and last box column, first and last box row
+    count = np.zeros(bh * bw + 1, np.int64)
     m = 0
     for i in range(tri.shape[0]):
         t = tri[i]
@@ -187,17 +196,17 @@ def _covered_band(tri, uv, h, w, cell, row_from, row_to, out):
         v0, v1 = min(t[0, 1], t[1, 1], t[2, 1]), max(t[0, 1], t[1, 1], t[2, 1])
         if u1 < 0.0 or u0 >= w or v1 < 0.0 or v0 >= h:
             continue
-        c0, c1 = int(max(u0, 0.0) / cell), min(int(u1 / cell), cw - 1)
-        r0, r1 = int(max(v0, 0.0) / cell), min(int(v1 / cell), ch - 1)
-        if table[r1 + 1, c1 + 1] - table[r0, c1 + 1] - table[r1 + 1, c0] + table[r0, c0] == 0:
+        c0, c1 = max(int(max(u0, 0.0) / cell), c_lo) - c_lo, min(int(u1 / cell), c_hi) - c_lo
+        r0, r1 = max(int(max(v0, 0.0) / cell), r_lo) - r_lo, min(int(v1 / cell), r_hi) - r_lo
+        if c0 > c1 or r0 > r1 or table[r1 + 1, c1 + 1] - table[r0, c1 + 1] - table[r1 + 1, c0] + table[r0, c0] == 0:
             continue
         near[m] = i
         box[m, 0], box[m, 1], box[m, 2], box[m, 3] = u0, u1, v0, v1
         cells[m, 0], cells[m, 1], cells[m, 2], cells[m, 3] = c0, c1, r0, r1
         for cv in range(r0, r1 + 1):
             for cu in range(c0, c1 + 1):
-                if wanted[cv * cw + cu]:
-                    count[cv * cw + cu + 1] += 1
+                if wanted[cv * bw + cu]:
+                    count[cv * bw + cu + 1] += 1
         m += 1
     start = np.cumsum(count)
     fill = start[:-1].copy()
@@ -205,7 +214,7 @@ def _covered_band(tri, uv, h, w, cell, row_from, row_to, out):
     for k in range(m):
         for cv in range(cells[k, 2], cells[k, 3] + 1):
             for cu in range(cells[k, 0], cells[k, 1] + 1):
-                c = cv * cw + cu
+                c = cv * bw + cu
                 if wanted[c]:
                     ids[fill[c]] = k
                     fill[c] += 1
@@ -213,7 +222,7 @@ def _covered_band(tri, uv, h, w, cell, row_from, row_to, out):
         u, v = uv[j, 0], uv[j, 1]
         if not (0.0 <= u < w and 0.0 <= v < h and row_from <= int(v / cell) < row_to):
             continue
-        c = int(v / cell) * cw + int(u / cell)
+        c = (int(v / cell) - r_lo) * bw + int(u / cell) - c_lo
         for q in range(start[c], start[c + 1]):
             k = ids[q]
             if box[k, 0] <= u <= box[k, 1] and box[k, 2] <= v <= box[k, 3] and _inside(tri[near[k]], u, v):
