@@ -19,7 +19,8 @@ from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import FrameCandidates, SingleFrameOptions, frame_candidates
 from feepe.centres import CentreTrack, observed_centre
-from feepe.icp import PlaneTerm, SurfaceModel, associate, observed_cloud, sensor_plane_term
+from feepe.icp import (PlaneTerm, SurfaceModel, associate, depth_agreement, depth_distances, observed_cloud,
+                       robust_scale, sensor_plane_term)
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
@@ -35,6 +36,7 @@ REFINEMENTS = ("none", "silhouette", "silhouette+depth")
 SILHOUETTES = ("ee", "robot")
 IOU_STRIDE = 2  # the refinement's decisions compare mask IoUs on every second pixel
 RENDERER = "zbuffer"  # how the refinement renders masks and tests outlines (feepe/raster.py; before: Embree rays)
+CHOICE = "iou x scaled depth agreement"  # the refinement with depth picks among descents so (before: IoU alone)
 MIN_DECREASE = 1e-6  # the refinement's solves stop once a step promises less than this fraction of the cost
 MIN_STEP = 1e-6  # or once a step that failed moves the pose less than this (rad and m: 1 um at the model)
 # The optimisation and the refinement multiply many small matrices (normal equations of N x 6 Jacobians,
@@ -153,6 +155,8 @@ def describe(opts: FeepeOptions, backbone) -> dict:
         out.pop("silhouette_refit_growth")
     if opts.refine != "none":  # the refinement's estimates changed with the rasteriser (results.md, sixth
         out["silhouette_renderer"] = RENDERER  # step): a run stored before it is not resumed by this code
+    if opts.depth_in_refinement:  # so did its choice among descents, with depth (results.md, eleventh step)
+        out["silhouette_choice"] = CHOICE
     return {**out, "backbone": backbone.options()}
 
 
@@ -303,7 +307,9 @@ class Estimator:
         of the memory's size then) and a current mask that the last calibration explains as well as it
         explained the key frames, it stands. Else it is refined at the
         finest scale and kept unless another start explains the current mask clearly better; then every start
-        is scored on all key frames and the best ones are refined coarse to fine. The best mean mask IoU wins."""
+        is scored on all key frames and the best ones are refined coarse to fine. The best mean mask IoU wins;
+        with depth, the best IoU times the depth's agreement (`feepe.icp.depth_agreement`) at the noise scale
+        measured at the best IoU's pose (so exact depth judges sharply, a stereo camera's loosely)."""
         opts, sigmas, current = self.opts, self.opts.silhouette_sigmas_px, frames[:1]
 
         def fit(T: np.ndarray, views: list) -> float:
@@ -324,14 +330,19 @@ class Estimator:
                 self._fitted = (len(self.pool), fit(warm, frames))
                 return warm
         scored = sorted(((fit(T, frames), i) for i, T in enumerate(starts)), reverse=True)
-        best_iou, best = (fit(warm, frames), warm) if warm is not None else (-1.0, None)
-        for _, i in scored[:opts.silhouette_starts]:
-            T = self._descend(starts[i], frames, sigmas, clouds)
-            score = fit(T, frames)
-            if score > best_iou:
-                best_iou, best = score, T
-        self._fitted = (len(self.pool), best_iou)
-        return best
+        descended = ([warm] if warm is not None else []) + [self._descend(starts[i], frames, sigmas, clouds)
+                                                           for _, i in scored[:opts.silhouette_starts]]
+        ious = [fit(T, frames) for T in descended]
+        scores = ious
+        if clouds:  # depth judges too: the IoU times the depth's agreement, all at the best IoU's noise scale
+            distances = [depth_distances(T, clouds, self.model, opts.depth_sigma_m, opts.depth_sigma_z2)
+                         for T in descended]
+            scale = robust_scale(distances[int(np.argmax(ious))])
+            scores = [iou * (a if np.isfinite(a) else 1.0)
+                      for iou, a in zip(ious, (depth_agreement(d, scale) for d in distances))]
+        best = int(np.argmax(scores))
+        self._fitted = (len(self.pool), ious[best])
+        return descended[best]
 
     def _descend(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:
         """Gauss-Newton on the contour term (and depth), the contour re-extracted between solves (as ICP

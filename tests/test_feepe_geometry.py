@@ -2,18 +2,19 @@
 symmetry."""
 
 import numpy as np
+import trimesh
 from scipy.spatial.transform import Rotation
 
 from feepe.candidates import Candidate
 from feepe.crop import crop_around_mask
 from feepe.depth import normal_map
-from feepe.icp import PlaneTerm, PlaneTerms
+from feepe.icp import PlaneTerm, PlaneTerms, SurfaceModel, depth_agreement, depth_distances, robust_scale
 from feepe.matching import best_buddies
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.optimize import OptimizeOptions, _step, optimize, stack
 from feepe.pnp import solve_pnp
 from feepe.symmetry import consensus
-from kernel.transforms import make_T, rotation_angle, transform_points
+from kernel.transforms import inv_T, make_T, rotation_angle, transform_points
 
 K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
 
@@ -136,6 +137,34 @@ def test_plane_term_rows_match_numpy_and_finite_differences():
         numeric = (fixed_normal(_step(T, x)) - fixed_normal(_step(T, -x))) / 2e-6
         assert np.allclose(numeric, J[:, 0, k], rtol=1e-5, atol=1e-3)
 
+
+
+def test_depth_agreement_tells_the_right_calibration_from_a_turned_one():
+    """An L-shaped part seen in two key frames: its depth agrees with the true calibration (points sampled
+    apart from the model's, so distances are not zero), much less with one turned 90 degrees about the part's
+    centre or moved 2 cm; a larger noise scale forgives more; no depth points give NaN. The noise scale
+    measured at the truth (its distances are sampling gaps, well below sigma) is below 1, at a wrong pose above."""
+    mesh = trimesh.util.concatenate([trimesh.creation.box([0.08, 0.02, 0.02]),
+                                     trimesh.creation.box([0.02, 0.05, 0.02]).apply_translation([0.03, 0.035, 0])])
+    points, faces = trimesh.sample.sample_surface_even(mesh, 3000, seed=0)
+    model = SurfaceModel(np.asarray(points), mesh.face_normals[faces])
+    seen = trimesh.sample.sample_surface_even(mesh, 500, seed=1)[0]
+    T_cam_base = make_T(Rotation.from_euler("xyz", [2.5, 0.2, -0.4]).as_matrix(), [0.05, -0.02, 0.9])
+    T_base_ee = [make_T(Rotation.from_euler("xyz", a).as_matrix(), t)
+                 for a, t in (([0, 0, 0], [0.3, 0, 0.4]), ([0.3, -0.5, 1.0], [0.35, 0.1, 0.35]))]
+    frames = [(T, transform_points(T_cam_base @ T, seen)) for T in T_base_ee]
+    centre = T_cam_base @ T_base_ee[0] @ make_T(np.eye(3), mesh.centroid)
+    turned = centre @ make_T(Rotation.from_euler("y", 90, degrees=True).as_matrix(), [0, 0, 0]) @ inv_T(centre) \
+        @ T_cam_base
+    moved = make_T(np.eye(3), [0.02, 0, 0]) @ T_cam_base
+    right, off, away = (depth_distances(T, frames, model, 0.002, 0.0036) for T in (T_cam_base, turned, moved))
+    assert robust_scale(right) < 0.5 < 1.0 < robust_scale(off)
+    assert depth_agreement(right, 1.0) > 0.9  # the sampling floor: about 1 mm to the nearest of 3000 points
+    assert depth_agreement(off, 1.0) < 0.5 * depth_agreement(right, 1.0)
+    assert depth_agreement(away, 1.0) < 0.5 * depth_agreement(right, 1.0)
+    assert depth_agreement(off, 0.25) < depth_agreement(off, 1.0) < depth_agreement(off, 4.0)
+    empty = depth_distances(T_cam_base, [(T_base_ee[0], np.zeros((0, 3)))], model, 0.002, 0.0036)
+    assert len(empty) == 0 and np.isnan(depth_agreement(empty, 1.0)) and robust_scale(empty) == 1.0
 
 class _Misled:
     """A residual whose Jacobian points the wrong way, as a sampled field's can at the optimum: every step

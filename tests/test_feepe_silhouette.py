@@ -153,6 +153,9 @@ def test_paper_variants_keep_their_identity_and_options_are_checked():
     assert robot["robot_start_frames"] == 3 and robot["silhouette_refit_growth"] == 0.25
     # refinement runs from before the rasteriser (no renderer named) are not resumed; the paper's variants are
     assert ee["silhouette_renderer"] == "zbuffer" and "silhouette_renderer" not in describe(FeepeOptions(), net)
+    # and runs with depth from before its choice among descents heard depth; those without depth are
+    assert "silhouette_choice" not in ee
+    assert describe(FeepeOptions(refine="silhouette+depth"), net)["silhouette_choice"] == "iou x scaled depth agreement"
 
 
 @pytest.mark.parametrize("refine", ["silhouette", "silhouette+depth"])
