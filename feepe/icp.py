@@ -126,7 +126,6 @@ def sensor_plane_term(planes: PlaneTerms, T_cam_base: np.ndarray, sigma_0: float
     return term
 
 
-
 def depth_distances(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel,
                     sigma_0: float, k_z2: float) -> np.ndarray:
     """The key frames' depth points' distances to the nearest model point, each over the sensor model
