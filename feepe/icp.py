@@ -60,16 +60,26 @@ class PlaneTerms:
     target_cam: np.ndarray  # (N, 3) the observed depth points, camera frame
 
 
+def _nearest(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel,
+             gate_m: float = np.inf) -> tuple[list, np.ndarray, np.ndarray]:
+    """The frames with depth points, and each point's distance to its nearest model point and that point's
+    index (inf and len(model.points) beyond `gate_m`), all frames in one KD-tree query."""
+    frames = [(T_base_ee, cloud) for T_base_ee, cloud in frames if len(cloud)]
+    if not frames:
+        return [], np.zeros(0), np.zeros(0, int)
+    in_model = [transform_points(inv_T(T_cam_base @ T_base_ee), cloud) for T_base_ee, cloud in frames]
+    dist, idx = model.tree.query(np.concatenate(in_model), distance_upper_bound=gate_m)
+    return frames, dist, idx
+
+
 def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel,
               gate_m: float) -> PlaneTerms:
     """frames: (T_base_ee, observed cloud) each; each observed point pairs with its nearest model point
     within `gate_m`."""
-    frames = [(T_base_ee, cloud) for T_base_ee, cloud in frames if len(cloud)]
+    frames, dist, idx = _nearest(T_cam_base, frames, model, gate_m)
     if not frames:
         return PlaneTerms(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
-    in_model = [transform_points(inv_T(T_cam_base @ T_base_ee), cloud) for T_base_ee, cloud in frames]
-    dist, idx = model.tree.query(np.concatenate(in_model), distance_upper_bound=gate_m)  # one query for all
-    ends = np.cumsum([len(P) for P in in_model])
+    ends = np.cumsum([len(cloud) for _, cloud in frames])
     base, normals, target = [], [], []
     for (T_base_ee, cloud), end in zip(frames, ends):
         ok = np.isfinite(dist[end - len(cloud):end])
@@ -130,11 +140,9 @@ def depth_distances(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.nd
                     sigma_0: float, k_z2: float) -> np.ndarray:
     """The key frames' depth points' distances to the nearest model point, each over the sensor model
     sigma(z) = sigma_0 + k_z2 z^2 of `sensor_plane_term`."""
-    frames = [(T_base_ee, cloud) for T_base_ee, cloud in frames if len(cloud)]
+    frames, dist, _ = _nearest(T_cam_base, frames, model)
     if not frames:
         return np.zeros(0)
-    in_model = np.concatenate([transform_points(inv_T(T_cam_base @ T_base_ee), cloud) for T_base_ee, cloud in frames])
-    dist, _ = model.tree.query(in_model)
     return dist / (sigma_0 + k_z2 * np.concatenate([cloud[:, 2] for _, cloud in frames]) ** 2)
 
 

@@ -138,7 +138,6 @@ def test_plane_term_rows_match_numpy_and_finite_differences():
         assert np.allclose(numeric, J[:, 0, k], rtol=1e-5, atol=1e-3)
 
 
-
 def test_depth_agreement_tells_the_right_calibration_from_a_turned_one():
     """An L-shaped part seen in two key frames: its depth agrees with the true calibration (points sampled
     apart from the model's, so distances are not zero), much less with one turned 90 degrees about the part's
@@ -165,6 +164,7 @@ def test_depth_agreement_tells_the_right_calibration_from_a_turned_one():
     assert depth_agreement(off, 0.25) < depth_agreement(off, 1.0) < depth_agreement(off, 4.0)
     empty = depth_distances(T_cam_base, [(T_base_ee[0], np.zeros((0, 3)))], model, 0.002, 0.0036)
     assert len(empty) == 0 and np.isnan(depth_agreement(empty, 1.0)) and robust_scale(empty) == 1.0
+
 
 class _Misled:
     """A residual whose Jacobian points the wrong way, as a sampled field's can at the optimum: every step
