@@ -1,7 +1,8 @@
 """What a scored scene was computed from, so that a rerun into the same `--out` never reuses a stale score.
 
-A scene's fingerprint lists every input file: the scene's JSON files by content hash, its images (RGB, the
-depth folder read, visible masks) by size and modification time (as make and rsync judge files; hashing
+A scene's fingerprint lists every input file: the scene's JSON records by content hash, every image its frames'
+reader opens (RGB, depth and the depth folder read, masks, the robot's part masks, a stereo sensor's extras) by
+size and modification time (as make and rsync judge files; hashing
 every image of a 54,000-frame data set on each rerun would cost more than scoring it), the evaluation
 model by hash, the metric's rule and the method's own inputs (e.g. FEEPE's template set) by size and
 modification time. The evaluation model and the metric only score the estimates: when nothing else
@@ -14,7 +15,8 @@ import hashlib
 import json
 from pathlib import Path
 
-SCENE_JSONS = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_robot.json")
+from kernel.dataset import Scene
+
 SCORING = {"model_eval": "the evaluation model (models_eval/)",  # what only the scoring reads, never the method
            "metric": "the metric's query rule"}
 
@@ -44,17 +46,14 @@ def files_stat(paths: list[Path]) -> dict[str, list[int] | None]:
     return out
 
 
-def scene_fingerprint(scene_dir: Path, im_ids: list[int], depth_dir: str, model_sha256: str,
-                      method_inputs: list[Path], metric: dict) -> dict:
-    scene_dir = Path(scene_dir)
-    images = {}
-    for im_id in im_ids:
-        for folder, name in (("rgb", f"{im_id:06d}.png"), (depth_dir, f"{im_id:06d}.png"),
-                             ("mask_visib", f"{im_id:06d}_000000.png")):
-            images[f"{folder}/{name}"] = _stat(scene_dir / folder / name)
-    return {"im_ids": list(im_ids),
-            "json": {name: _sha256(scene_dir / name) for name in SCENE_JSONS if (scene_dir / name).is_file()},
-            "images": images, "model_eval": model_sha256, "metric": metric, "method_inputs": files_stat(method_inputs)}
+def scene_fingerprint(scene: Scene, depth_dir: str | None, model_sha256: str, method_inputs: list[Path],
+                      metric: dict) -> dict:
+    """Every file the run reads for the scene: what reading its frames opens (kernel's layout,
+    `Scene.inputs`), the method's own inputs, and what scores it."""
+    records, images = scene.inputs(depth_dir)
+    return {"im_ids": list(scene.im_ids), "json": {name: _sha256(path) for name, path in records.items()},
+            "images": {name: _stat(path) for name, path in images.items()}, "model_eval": model_sha256,
+            "metric": metric, "method_inputs": files_stat(method_inputs)}
 
 
 def differences(before: dict, now: dict) -> list[str]:

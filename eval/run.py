@@ -250,7 +250,7 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
     if hasattr(method, "check"):
         method.check({i: complete_frames(p) for i, p in data.scene_dirs().items()}, data.split_dir)
     _claim(out, identity)
-    fingerprints = {s.scene_id: scene_fingerprint(s.path, s.im_ids, depth_dir, models[s.meta.obj_id].sha256,
+    fingerprints = {s.scene_id: scene_fingerprint(s, depth_dir, models[s.meta.obj_id].sha256,
                                                   _method_inputs(method, s), QUERY_RULE) for s in selected}
     todo, rescore, said = [], [], {}
     for scene in selected:

@@ -59,17 +59,33 @@ EXTRAS = {"stereo": ("depth_gt",), "both": ("depth_gt", "ir_left", "ir_right")}
 LINK_IDS_DIR = "robot_mask_visib"  # our sidecar, not BOP: which robot part each pixel sees (uint8 PNG)
 
 
-def _image_paths(scene_dir: Path, im_id: int, robot: dict | None = None) -> dict[str, Path]:
+def image_path(scene_dir: Path, folder: str, im_id: int) -> Path:
+    """A frame's image in one of the scene's per-frame folders, named by the frame id as BOP names them."""
+    return Path(scene_dir) / folder / f"{im_id:06d}.png"
+
+
+def object_mask_path(scene_dir: Path, folder: str, im_id: int) -> Path:
+    """A frame's mask of the end-effector (BOP's ground-truth object GT_ID) in `folder` (mask/, mask_visib/)."""
+    return Path(scene_dir) / folder / f"{im_id:06d}_{GT_ID:06d}.png"
+
+
+def record_paths(scene_dir: Path) -> dict[str, Path]:
+    """The scene's JSON records that the readers load, by name (scene_gt_coco.json is written, never read)."""
+    return {name: Path(scene_dir) / f"{name}.json" for name in _JSONS}
+
+
+def frame_paths(scene_dir: Path, im_id: int, robot: dict | None = None) -> dict[str, Path]:
     """The files of one frame, from the scene's `scene_robot.json` record: a simulated depth sensor adds the
-    exact depth (and the IR pair), a scene that names its robot parts adds their visible-mask image."""
+    exact depth (and the IR pair), a scene that names its robot parts adds their visible-mask image.
+    `read_frame` reads every one of them."""
     robot = robot or {}
-    mask_name = f"{im_id:06d}_{GT_ID:06d}.png"
-    paths = {"rgb": scene_dir / "rgb" / f"{im_id:06d}.png", "depth": scene_dir / "depth" / f"{im_id:06d}.png",
-             "mask": scene_dir / "mask" / mask_name, "mask_visib": scene_dir / "mask_visib" / mask_name}
+    paths = {"rgb": image_path(scene_dir, "rgb", im_id), "depth": image_path(scene_dir, "depth", im_id),
+             "mask": object_mask_path(scene_dir, "mask", im_id),
+             "mask_visib": object_mask_path(scene_dir, "mask_visib", im_id)}
     for extra in EXTRAS.get((robot.get("depth_sensor") or {}).get("mode"), ()):
-        paths[extra] = scene_dir / extra / f"{im_id:06d}.png"
+        paths[extra] = image_path(scene_dir, extra, im_id)
     if robot.get("links"):
-        paths["link_ids"] = scene_dir / LINK_IDS_DIR / f"{im_id:06d}.png"
+        paths["link_ids"] = image_path(scene_dir, LINK_IDS_DIR, im_id)
     return paths
 
 
@@ -84,7 +100,7 @@ def read_dataset_info(root: Path) -> dict:
 
 
 def _load_records(scene_dir: Path) -> dict[str, dict]:
-    paths = {name: scene_dir / f"{name}.json" for name in _JSONS}
+    paths = record_paths(scene_dir)
     records = {name: read_json(p) if p.exists() else {} for name, p in paths.items()}
     _check_fields(paths, records)
     return records
@@ -134,7 +150,7 @@ def _check_fields(paths: dict[str, Path], records: dict[str, dict]) -> None:
 def _complete(scene_dir: Path, records: dict[str, dict], im_id: int) -> bool:
     key, robot = str(im_id), records["scene_robot"]
     return (all(key in records[name] for name in _JSONS[:3]) and key in robot.get("frames", {})
-            and all(p.exists() for p in _image_paths(scene_dir, im_id, robot).values()))
+            and all(p.exists() for p in frame_paths(scene_dir, im_id, robot).values()))
 
 
 def complete_frames(scene_dir: Path, records: dict[str, dict] | None = None) -> list[int]:
@@ -208,7 +224,7 @@ def _load_coco(scene_dir: Path, records: dict[str, dict]) -> dict[int, dict]:
     for key in records["scene_robot"].get("frames", {}):
         im_id = int(key)
         if im_id not in coco and _complete(scene_dir, records, im_id):
-            paths = _image_paths(scene_dir, im_id, records["scene_robot"])
+            paths = frame_paths(scene_dir, im_id, records["scene_robot"])
             coco[im_id] = _coco_record(im_id, records["scene_gt"][key][GT_ID]["obj_id"],
                                       read_png(paths["mask"]) > 127, read_png(paths["mask_visib"]) > 127)
     return coco
@@ -279,7 +295,7 @@ class SceneWriter:
             self._records["scene_robot"]["links"] = list(meta.links)
         self._coco = _load_coco(self.scene_dir, self._records)
         self._obj_ids = sorted(obj_ids)
-        for path in _image_paths(self.scene_dir, 0, self._records["scene_robot"]).values():
+        for path in frame_paths(self.scene_dir, 0, self._records["scene_robot"]).values():
             path.parent.mkdir(parents=True, exist_ok=True)
 
     def done(self, im_id: int) -> bool:
@@ -311,7 +327,7 @@ class SceneWriter:
         """Images first, then every JSON, so a JSON record only ever names whole images."""
         meta, key = self.meta, str(frame.im_id)
         depth_png = _depth_png(frame, meta.depth_scale)
-        paths = _image_paths(self.scene_dir, frame.im_id, self._records["scene_robot"])
+        paths = frame_paths(self.scene_dir, frame.im_id, self._records["scene_robot"])
         write_png(paths["rgb"], cv2.cvtColor(np.ascontiguousarray(frame.rgb), cv2.COLOR_RGB2BGR))
         write_png(paths["depth"], depth_png)
         for name, image in self._extras(frame, depth_png).items():
@@ -419,7 +435,7 @@ def read_frame(scene_dir: Path, im_id: int) -> Frame:
     records = _load_records(scene_dir)
     if not _complete(scene_dir, records, im_id):
         raise UserError(f"{scene_dir}: no complete frame {im_id}; `read_scene` lists the frames present")
-    key, paths = str(im_id), _image_paths(scene_dir, im_id, records["scene_robot"])
+    key, paths = str(im_id), frame_paths(scene_dir, im_id, records["scene_robot"])
     camera, gt = records["scene_camera"][key], records["scene_gt"][key][GT_ID]
     robot = records["scene_robot"]["frames"][key]
     extras = {n: read_png(paths[n]) for n in ("ir_left", "ir_right", "link_ids") if n in paths}

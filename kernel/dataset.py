@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from kernel.bop import (Frame, SceneMeta, read_dataset_info, read_frame, read_gt_poses, read_scene, scene_dirs,
-                        split_name)
+from kernel.bop import (Frame, SceneMeta, frame_paths, image_path, read_dataset_info, read_frame, read_gt_poses,
+                        read_scene, record_paths, scene_dirs, split_name)
 from kernel.errors import UserError
 from kernel.files import read_json, read_png
 
@@ -54,9 +54,23 @@ class Scene:
         """scene_camera.json by frame id (as text, as BOP keys it)."""
         return read_json(self.path / "scene_camera.json")
 
+    def inputs(self, depth_folder: str | None = "depth") -> tuple[dict[str, Path], dict[str, Path]]:
+        """Every file reading this scene's frames opens (`read_scene`, `frame`, `depth(.., depth_folder)`;
+        None: no other depth): its JSON records, then each frame's images, both by their path relative to the
+        scene folder. A result computed from the scene is fingerprinted by exactly these."""
+        robot = read_json(record_paths(self.path)["scene_robot"])
+        images = {}
+        for im_id in self.im_ids:
+            paths = list(frame_paths(self.path, im_id, robot).values())
+            if depth_folder is not None:
+                paths.append(image_path(self.path, depth_folder, im_id))
+            images.update((p.relative_to(self.path).as_posix(), p) for p in paths)
+        records = {p.name: p for p in record_paths(self.path).values() if p.is_file()}
+        return records, images
+
     def depth(self, im_id: int, folder: str = "depth") -> np.ndarray:
         """A frame's depth in metres from `folder` (`depth`, or another sensor's beside it, e.g. `depth_gt`)."""
-        path = self.path / folder / f"{im_id:06d}.png"
+        path = image_path(self.path, folder, im_id)
         if not path.is_file():
             raise UserError(f"{path}: missing; depth folder {folder!r} must sit beside depth/ in every scene")
         return read_png(path) * (self.cameras[str(im_id)]["depth_scale"] / 1000.0)

@@ -14,6 +14,8 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+import kernel.bop
+import kernel.dataset
 from eval import methods, run
 from eval.bop_results import HEADER, read_results
 from eval.methods import option, register
@@ -33,25 +35,30 @@ OBJ_IDS = list(range(1, 7))
 REPO = Path(__file__).resolve().parents[1]
 
 
-def make_dataset(root: Path, assets: Path) -> Path:
-    """Two scenes of four frames: random images, a known camera-to-base pose, T_cam_ee = T_cam_base T_base_ee."""
+def make_dataset(root: Path, assets: Path, sensor_and_parts: bool = False) -> Path:
+    """Two scenes of four frames: random images, a known camera-to-base pose, T_cam_ee = T_cam_base T_base_ee.
+    `sensor_and_parts`: a stereo sensor's depth beside the exact one and the robot's part masks, as renders
+    with `--depth stereo` write them."""
     rng = np.random.default_rng(0)
     for models in ("models", "models_eval"):
         shutil.copytree(assets / models, root / models, ignore=shutil.ignore_patterns(".*"))
     (root / "dataset_info.json").write_text(json.dumps({"preset": "synthetic", "split": "test", "name": "syneepose"}))
     for scene_id, (arm, ee, obj_id) in SCENES.items():
         T_cam_base = make_T(Rotation.from_euler("xyz", [-2.0, 0.1, 0.3 * scene_id]).as_matrix(), [0.1, 0.2, 1.5])
+        extras = {"depth_sensor": {"mode": "stereo", "profile": {}}, "links": ["link", "ee"]} if sensor_and_parts else {}
         meta = SceneMeta(obj_id=obj_id, arm=arm, end_effector=ee, joint_names=[f"j{i}" for i in range(6)],
-                         T_cam_base=T_cam_base)
+                         T_cam_base=T_cam_base, **extras)
         writer = SceneWriter(root / "test" / f"{scene_id:06d}", meta, OBJ_IDS)
         for im_id in range(FRAMES):
             T_base_ee = make_T(Rotation.random(random_state=rng).as_matrix(), rng.uniform(-0.4, 0.4, 3) + [0, 0, 0.5])
             mask = np.zeros((H, W), bool)
             mask[3:9, 4:12] = True
+            depth = rng.uniform(0.5, 2.0, (H, W))
+            parts = {"depth_gt": depth, "link_ids": (1 + mask).astype(np.uint8)} if sensor_and_parts else {}
             writer.write(Frame(im_id=im_id, rgb=rng.integers(0, 256, (H, W, 3), dtype=np.uint8),
-                               depth=rng.uniform(0.5, 2.0, (H, W)), mask=mask, mask_visib=mask,
+                               depth=depth, mask=mask, mask_visib=mask,
                                K=np.array([[20.0, 0, 8], [0, 20.0, 6], [0, 0, 1]]), T_cam_ee=T_cam_base @ T_base_ee,
-                               joint_positions=rng.uniform(-2, 2, 6), T_base_ee=T_base_ee))
+                               joint_positions=rng.uniform(-2, 2, 6), T_base_ee=T_base_ee, **parts))
     return root
 
 
@@ -198,6 +205,47 @@ def test_resume_skips_complete_scenes_and_never_reuses_a_stale_one(dataset, tmp_
     assert _eval(data, tmp_path / "fresh", csv) == 0
     fresh = read_errors(tmp_path / "fresh" / "scenes" / "000001.errors.csv")
     assert [(r.im_id, r.add_m, r.adds_m) for r in after] == [(r.im_id, r.add_m, r.adds_m) for r in fresh]
+
+
+def test_the_fingerprint_holds_every_file_the_run_reads(tmp_path, assets, monkeypatch, capsys):
+    """Every image the runner opens for a scene (a stereo scene with the robot's part masks, scored on its exact
+    depth) is in that scene's fingerprint, so a rewritten part mask, exact depth or amodal mask runs the scene
+    again; the list comes from the kernel's layout, not a second spelling of folder names."""
+    data = make_dataset(tmp_path / "data", assets, sensor_and_parts=True)
+    csv = gt_csv(tmp_path / "results.csv", data)
+    opened = []
+    for module in (kernel.bop, kernel.dataset):
+        real = module.read_png
+        monkeypatch.setattr(module, "read_png", lambda path, *a, real=real, **k: opened.append(Path(path)) or real(path, *a, **k))
+    out = tmp_path / "out"
+    assert _eval(data, out, csv, "--depth-dir", "depth_gt") == 0
+    scene = data / "test" / "000001"
+    fingerprint = json.loads((out / "scenes" / "000001.fingerprint.json").read_text())
+    read = {p.relative_to(scene).as_posix() for p in opened if scene in p.parents}
+    assert {"robot_mask_visib", "depth_gt", "mask", "mask_visib", "rgb", "depth"} == {r.split("/")[0] for r in read}
+    assert read <= set(fingerprint["images"])
+    for changed in ("robot_mask_visib/000002.png", "depth_gt/000001.png", "mask/000003_000000.png"):
+        stamps = _stamps(out)
+        (scene / changed).write_bytes((scene / changed).read_bytes())
+        capsys.readouterr()
+        assert _eval(data, out, csv, "--depth-dir", "depth_gt") == 0
+        assert sorted({n.split(".")[0] for n in stamps if _stamps(out)[n] != stamps[n]}) == ["000001"]
+        assert changed in capsys.readouterr().err
+
+
+def test_the_robot_outline_fingerprints_the_arm_urdf_and_its_link_meshes(tiny_dataset):
+    """`--silhouette robot` reads the arm's URDF and link meshes: they are the method's inputs, so a changed
+    robot model runs the scenes again."""
+    from eval.methods.feepe import Feepe, FeepeFlags, arm_models, link_mesh_paths
+
+    scene = sorted((tiny_dataset / "test").iterdir())[0]
+    meta, _ = read_scene(scene)
+    method = Feepe(FeepeFlags(refine="silhouette", silhouette="robot"))
+    inputs = method.inputs(meta, scene)
+    robot, links, _ = arm_models(meta)
+    meshes = [p for name in links for p in link_mesh_paths(robot, name)]
+    assert robot.urdf in inputs and meshes and set(meshes) <= set(inputs) and all(p.exists() for p in inputs)
+    assert not any(p.suffix == ".urdf" for p in Feepe(FeepeFlags(refine="silhouette")).inputs(meta, scene))
 
 
 def test_scene_and_robot_selection(dataset, tmp_path):

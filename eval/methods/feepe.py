@@ -91,20 +91,31 @@ class Feepe:
                 "estimator": describe(self.opts, self.backbone)}
 
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
-        """The template set of the scene's end-effector, and the model `--icp` / `--refine` align."""
-        dataset = Dataset.of_scene(scene_dir)
-        root = Path(self.templates_dir) if self.templates_dir else dataset.templates_dir
-        found = [find_template_set(root, meta.end_effector, self.n_templates)]
-        if self.opts.needs_surface or self.opts.refine != "none":  # the depth terms, the silhouette
-            found.append(dataset.model_path(meta.obj_id))
+        """The template set of the scene's end-effector, the model `--icp` / `--refine` align, and for the
+        robot's outline the arm's URDF and link meshes."""
+        found = [self._templates(meta, scene_dir)]
+        if self._needs_model:
+            found.append(Dataset.of_scene(scene_dir).model_path(meta.obj_id))
+        if self.opts.silhouette == "robot":
+            robot, links, _ = self._arm_models(meta)
+            found += [robot.urdf, *(path for name in links for path in link_mesh_paths(robot, name))]
         return found
+
+    @property
+    def _needs_model(self) -> bool:
+        return self.opts.needs_surface or self.opts.refine != "none"  # the depth terms, the silhouette
+
+    def _templates(self, meta: SceneMeta, scene_dir: Path) -> Path:
+        root = Path(self.templates_dir) if self.templates_dir else Dataset.of_scene(scene_dir).templates_dir
+        return find_template_set(root, meta.end_effector, self.n_templates)
 
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
         ee = meta.end_effector
         if ee not in self._estimators:
-            folder, *model_ply = self.inputs(meta, scene_dir)
-            bank = onboard(folder, self.backbone, self.opts.single.pad, {"assignment": self.bow_assignment})
-            model, silhouette = load_models(model_ply[0], self.opts) if model_ply else (None, None)
+            bank = onboard(self._templates(meta, scene_dir), self.backbone, self.opts.single.pad,
+                           {"assignment": self.bow_assignment})
+            model, silhouette = (load_models(Dataset.of_scene(scene_dir).model_path(meta.obj_id), self.opts)
+                                 if self._needs_model else (None, None))
             self._estimators[ee] = Estimator(bank, self.backbone, self.opts, model, silhouette)
         self._current = self._estimators[ee]
         self._arm = self._arm_models(meta) if self.opts.silhouette == "robot" else None
@@ -147,10 +158,14 @@ def robot_view(arm: tuple, robot_mask: np.ndarray, joint_positions: np.ndarray) 
     return RobotView(robot_mask, np.stack([T_base_link[name] for name in links]))
 
 
+def link_mesh_paths(robot, name: str) -> list[Path]:
+    """The mesh files of one arm link's visuals, as its URDF names them."""
+    return [robot.urdf.parent / visual.mesh for visual in robot.model.link(name).visuals]
+
+
 def link_mesh(robot, name: str) -> trimesh.Trimesh:
     """One arm link's visual meshes in its link frame (metres); SilhouetteModel merges their corners."""
     parts = []
-    for visual in robot.model.link(name).visuals:
-        part = trimesh.load(str(robot.urdf.parent / visual.mesh), force="mesh")
-        parts.append(part.apply_transform(visual.origin))
+    for path, visual in zip(link_mesh_paths(robot, name), robot.model.link(name).visuals):
+        parts.append(trimesh.load(str(path), force="mesh").apply_transform(visual.origin))
     return trimesh.util.concatenate(parts)
