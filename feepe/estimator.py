@@ -188,6 +188,9 @@ class Estimator:
     def reset(self, arm: list[SilhouetteModel] | None = None) -> None:
         """Start a new sequence (a new camera placement): the memory and the last calibration go. `arm`:
         the arm links' meshes (link frames) that `silhouette="robot"` fits beside the end-effector."""
+        if arm and self.opts.silhouette != "robot":
+            raise UserError("reset(arm=...) gives the arm's link meshes to the robot's outline; build the Estimator "
+                            "with FeepeOptions(refine='silhouette', silhouette='robot') to fit it, or leave arm out")
         self.parts = PartsSilhouette([self.silhouette, *(arm or [])]) if self.silhouette is not None else None
         self._robot_points = model_points([p.mesh for p in self.parts.parts]) if arm else None
         self.pool = MemoryPool(self.opts.memory_threshold_deg,

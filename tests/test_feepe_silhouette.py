@@ -208,6 +208,21 @@ def test_robot_silhouette_pulls_a_wrong_calibration_onto_the_robot_mask(tiny_dat
         assert np.linalg.norm(dT[:3, 3]) < 0.01 and angle < 1.0, (i, dT[:3, 3], angle)
 
 
+@pytest.mark.parametrize("refine", ["none", "silhouette"])
+def test_arm_links_without_the_robot_outline_are_one_clear_error(tiny_dataset, refine):
+    """A library user who passes arm links to an Estimator that does not fit the robot's outline (no refinement,
+    or the end-effector's outline) is told what to build, not handed an AttributeError."""
+    scene = sorted(split_dir(tiny_dataset).iterdir())[0]
+    meta, _ = read_scene(scene)
+    ply = tiny_dataset / "models" / f"obj_{meta.obj_id:06d}.ply"
+    net = get_backbone(DEFAULT)
+    bank = onboard(find_template_set(tiny_dataset / "templates", meta.end_effector, None), net)
+    est = Estimator(bank, net, FeepeOptions(refine=refine), None,
+                    SilhouetteModel.from_ply(ply) if refine != "none" else None)
+    with pytest.raises(UserError, match=r"silhouette='robot'"):
+        est.reset(arm=[SilhouetteModel(trimesh.creation.box((0.1, 0.1, 0.1)))])
+
+
 def test_robot_parts_fit_the_outline_of_their_union():
     """Two boxes, one half in front of the other (an arm link and a gripper): each part keeps only the
     contour points on the union's outline - none where the other part covers or borders it - and the
