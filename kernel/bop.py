@@ -53,6 +53,7 @@ class SceneMeta:
     depth_sensor: dict | None = None  # {"mode": "stereo" | "both", "profile": {...}}; None: exact depth
     links: list[str] | None = None  # robot parts of `robot_mask_visib/` (arm links, then the end-effector)
     settings: dict | None = None  # what rendered the frames (seed, preset, resolution, ...); a resume must match
+    dropped_distractors: int = 0  # objects sampled for the scene but left out: no place away from the robot found
 
 
 EXTRAS = {"stereo": ("depth_gt",), "both": ("depth_gt", "ir_left", "ir_right")}
@@ -289,6 +290,8 @@ class SceneWriter:
             self._records["scene_robot"]["marker"] = meta.marker
         if meta.depth_sensor is not None:
             self._records["scene_robot"]["depth_sensor"] = meta.depth_sensor
+        if meta.dropped_distractors:
+            self._records["scene_robot"]["dropped_distractors"] = meta.dropped_distractors
         if meta.links:
             if len(meta.links) > 255:
                 raise UserError(f"{len(meta.links)} robot parts do not fit the uint8 {LINK_IDS_DIR}/ images (255 at most)")
@@ -414,7 +417,8 @@ def read_scene(scene_dir: Path) -> tuple[SceneMeta, list[int]]:
                      end_effector=robot["end_effector"], joint_names=list(robot["joint_names"]),
                      T_cam_base=np.array(robot["T_cam_base"], dtype=float),
                      depth_scale=records["scene_camera"][first]["depth_scale"], marker=robot.get("marker"),
-                     depth_sensor=robot.get("depth_sensor"), links=robot.get("links"), settings=robot.get("settings"))
+                     depth_sensor=robot.get("depth_sensor"), links=robot.get("links"), settings=robot.get("settings"),
+                     dropped_distractors=robot.get("dropped_distractors", 0))
     return meta, im_ids
 
 

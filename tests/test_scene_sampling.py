@@ -1,14 +1,18 @@
 """Pure sampling code: seeded, within ranges, geometry conventions."""
 
+import dataclasses
+import json
+
 import numpy as np
 import pytest
 
+from kernel.bop import Frame, SceneMeta, SceneWriter, read_scene
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
 from syneepose.jobs import Content, Selection, make_jobs, parse_shard
 from syneepose.preset import load_preset, parse_preset
 from syneepose.scene.motion import min_jerk, trajectory
-from syneepose.scene.sample import kelvin_to_rgb, look_at, rng_for
+from syneepose.scene.sample import distractors, kelvin_to_rgb, look_at, rng_for
 from syneepose.scene.spec import RenderSettings
 from syneepose.templates import fibonacci_sphere, poses
 
@@ -148,3 +152,33 @@ def test_stations_refuse_an_impossible_tilt():
         parse_preset({**content, "stations": {"max_tilt_deg": 95}})
     with pytest.raises(UserError, match="unknown key 'stations.tilt'"):
         parse_preset({**content, "stations": {"tilt": 10}})
+
+
+def test_distractors_stand_clear_of_the_robot_or_are_left_out_and_counted():
+    """Every object placed keeps its centre 0.3 m from the base and the end-effector's path; an object with no
+    such place is not placed at a rejected one but left out, and counted."""
+    preset = parse_preset({**load_preset("mini").model_dump(), "distractors": {"count": [3, 3], "size": [0.1, 0.2]}})
+    path = np.array([[0.5, 0.2, 0.4], [0.6, -0.3, 0.5], [-0.4, 0.5, 0.3]])
+    for seed in range(20):
+        objects, dropped = distractors(np.random.default_rng(seed), preset, path)
+        assert len(objects) + dropped == 3
+        for obj in objects:
+            xy = obj.T_base_obj[:2, 3]
+            assert np.linalg.norm(xy) > 0.3 and np.linalg.norm(path[:, :2] - xy, axis=1).min() > 0.3
+    grid = np.stack(np.meshgrid(np.linspace(-1.6, 1.6, 12), np.linspace(-1.6, 1.6, 12)), -1).reshape(-1, 2)
+    objects, dropped = distractors(np.random.default_rng(0), preset, np.c_[grid, np.zeros(len(grid))])
+    assert objects == [] and dropped == 3
+
+
+def test_left_out_distractors_are_recorded_in_the_scene(tmp_path):
+    meta = SceneMeta(obj_id=1, arm="ur5e", end_effector="robotiq_2f85", joint_names=["j"], T_cam_base=np.eye(4))
+    mask = np.zeros((4, 6), bool)
+    mask[1:3, 2:4] = True
+    frame = Frame(im_id=0, rgb=np.zeros((4, 6, 3), np.uint8), depth=np.ones((4, 6)), mask=mask, mask_visib=mask,
+                  K=np.array([[5.0, 0, 3], [0, 5.0, 2], [0, 0, 1]]), T_cam_ee=np.eye(4), joint_positions=np.zeros(1),
+                  T_base_ee=np.eye(4))
+    for dropped in (2, 0):
+        SceneWriter(tmp_path / str(dropped), dataclasses.replace(meta, dropped_distractors=dropped), [1]).write(frame)
+        assert read_scene(tmp_path / str(dropped))[0].dropped_distractors == dropped
+    # scenes that lost none keep the bytes they had before the record existed
+    assert "dropped_distractors" not in json.loads((tmp_path / "0" / "scene_robot.json").read_text())

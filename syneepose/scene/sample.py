@@ -115,20 +115,27 @@ def lights(rng, preset: Preset, target: np.ndarray) -> list[Light]:
     return out
 
 
-def distractors(rng, preset: Preset, avoid: np.ndarray) -> list[Distractor]:
-    """Objects on the floor, kept away from the robot base and the end-effector path (xy)."""
+MAX_PLACEMENTS = 100  # places tried per object before it is left out
+
+
+def distractors(rng, preset: Preset, avoid: np.ndarray) -> tuple[list[Distractor], int]:
+    """Objects on the floor, their centres at least 0.3 m from the robot base and the end-effector path (xy);
+    an object with no such place in MAX_PLACEMENTS draws is left out. Returns the objects and how many were."""
     p = preset.distractors
-    out = []
+    out, dropped = [], 0
     for _ in range(int(rng.integers(*p.count, endpoint=True))):
-        for _attempt in range(20):
+        for _attempt in range(MAX_PLACEMENTS):
             xy = rng.uniform(-1.5, 1.5, 2)
             if np.linalg.norm(xy) > 0.3 and np.min(np.linalg.norm(avoid[:, :2] - xy, axis=1)) > 0.3:
                 break
+        else:
+            dropped += 1
+            continue
         size = uniform(rng, p.size)
         kind = str(rng.choice(["cube", "sphere", "cylinder", "torus"]))
         T = make_T(t=[xy[0], xy[1], size / 2])
         out.append(Distractor(kind, size, T, random_surface(rng, preset)))
-    return out
+    return out, dropped
 
 
 def sample_segment(rng, preset: Preset, robot, config: str, stream: int, seed: int, q: np.ndarray,
@@ -145,11 +152,11 @@ def sample_segment(rng, preset: Preset, robot, config: str, stream: int, seed: i
                                         np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
     eye[2] = max(eye[2], 0.05)
     world = preset.world
-    return SegmentSpec(
-        config=config, stream=stream, seed=seed, K=K, T_base_cam=look_at(eye, target), q=q,
-        world_color=tuple(float(c) for c in rng.uniform(*world.value, 3) ** 2.2),
-        world_strength=uniform(rng, world.strength),
-        lights=lights(rng, preset, target),
-        planes=backdrop(rng, preset, images or []),
-        distractors=distractors(rng, preset, ee_path),
-    )
+    world_color = tuple(float(c) for c in rng.uniform(*world.value, 3) ** 2.2)
+    world_strength = uniform(rng, world.strength)
+    lit = lights(rng, preset, target)
+    planes = backdrop(rng, preset, images or [])
+    objects, dropped = distractors(rng, preset, ee_path)  # drawn in this order: a seed's segments stay as they were
+    return SegmentSpec(config=config, stream=stream, seed=seed, K=K, T_base_cam=look_at(eye, target), q=q,
+                       world_color=world_color, world_strength=world_strength, lights=lit, planes=planes,
+                       distractors=objects, dropped_distractors=dropped)

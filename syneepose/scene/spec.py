@@ -61,6 +61,7 @@ class SegmentSpec:
     lights: list[Light] = field(default_factory=list)
     planes: list[Plane] = field(default_factory=list)
     distractors: list[Distractor] = field(default_factory=list)
+    dropped_distractors: int = 0  # sampled objects left out: no place away from the robot was found
     marker: MarkerBoard | None = None  # a ChArUco board bolted to the end-effector (marker hand-eye segments)
 
     @property
