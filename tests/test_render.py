@@ -17,6 +17,8 @@ import pytest
 import trimesh
 
 from kernel.bop import read_frame, read_scene, split_dir
+from kernel.errors import UserError
+from syneepose.devices import gpu_backend
 from syneepose.robots.robot import load_robot
 
 # One configuration per end-effector, the arms rotating through.
@@ -339,7 +341,28 @@ def test_a_ray_task_whose_worker_dies_runs_again_and_ends_as_the_local_render(re
     assert not [p for p in out.rglob("*") if ".tmp" in p.name or p.name.startswith("tmp")]
 
 
-def test_gpu_request_without_gpu_is_one_clear_line(tmp_path, assets):
+@pytest.mark.parametrize("found, backend", [({"OPTIX": ["RTX A4000"], "CUDA": ["RTX A4000"]}, "OPTIX"),
+                                            ({"OPTIX": [], "CUDA": ["GTX 1080"]}, "CUDA"),
+                                            ({"CUDA": [], "HIP": ["RX 7900"], "METAL": []}, "HIP")])
+def test_gpu_backend_is_the_fastest_that_lists_a_gpu(found, backend):
+    assert gpu_backend(found) == backend
+
+
+@pytest.mark.parametrize("found", [{}, {"OPTIX": [], "CUDA": [], "HIP": []}])
+def test_gpu_request_without_a_gpu_is_one_clear_line(found):
+    with pytest.raises(UserError, match="no GPU on this machine; render with --device cpu"):
+        gpu_backend(found)
+
+
+def test_gpu_render_runs_where_cycles_lists_a_gpu_and_is_one_clear_line_elsewhere(tmp_path, assets):
+    """What Cycles itself lists here decides which: a machine with a GPU renders, one without gets the line."""
+    listed = subprocess.run([sys.executable, "-c", "import json; from syneepose.blender.scene import gpu_devices; "
+                             "print(json.dumps(gpu_devices()))"], capture_output=True, text=True, check=True)
+    has_gpu = any(json.loads(listed.stdout.strip().splitlines()[-1]).values())
     proc = _render(tmp_path, "--frames", "1", "--robots", CONFIGS[1], "--device", "gpu")
-    assert proc.returncode == 2 and "Traceback" not in proc.stderr
-    assert "no GPU" in proc.stderr.strip().splitlines()[-1]
+    if has_gpu:
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert len(list(tmp_path.rglob("rgb/000000.png"))) == 1
+    else:
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr
+        assert "no GPU" in proc.stderr.strip().splitlines()[-1]

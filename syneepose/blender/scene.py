@@ -18,6 +18,7 @@ import trimesh
 
 from kernel.errors import UserError
 from syneepose.blender.exr import read_passes, srgb_to_linear
+from syneepose.devices import GPU_BACKENDS, gpu_backend
 from syneepose.robots.model import RobotModel
 from syneepose.scene.marker import MarkerBoard
 from syneepose.scene.spec import Distractor, Light, Plane, Surface
@@ -86,21 +87,29 @@ def _emission_material():
     return material
 
 
-def _enable_gpu() -> bool:
-    """Turn on the first GPU backend Cycles finds; refuse clearly when there is none."""
+def gpu_devices() -> dict[str, list[str]]:
+    """The GPUs Cycles lists under each backend it was built with (backend -> device names)."""
     prefs = bpy.context.preferences.addons["cycles"].preferences
-    for backend in ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL"):
+    found = {}
+    for backend in GPU_BACKENDS:
         try:
             prefs.compute_device_type = backend
-        except TypeError:
+        except TypeError:  # not built into this Cycles
             continue
         prefs.get_devices()
-        gpus = [d for d in prefs.devices if d.type != "CPU"]
-        if gpus:
-            for d in prefs.devices:
-                d.use = d.type != "CPU"
-            return True
-    raise UserError("--device gpu: Cycles finds no GPU on this machine; render with --device cpu")
+        found[backend] = [d.name for d in prefs.devices if d.type != "CPU"]
+    return found
+
+
+def _enable_gpu() -> bool:
+    """Turn on every GPU of the first backend that has one (syneepose/devices.py); refuse clearly when none."""
+    backend = gpu_backend(gpu_devices())
+    prefs = bpy.context.preferences.addons["cycles"].preferences
+    prefs.compute_device_type = backend
+    prefs.get_devices()
+    for d in prefs.devices:
+        d.use = d.type != "CPU"
+    return True
 
 
 def set_camera(K: np.ndarray, width: int, height: int, T_base_cam: np.ndarray) -> None:
