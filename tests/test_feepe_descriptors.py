@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from feepe.backbones import get_backbone
+from feepe.backbones import DEFAULT, get_backbone
 from feepe.backbones.contrib import NAMES, ContribDescriptor
 from feepe.crop import Crop
 
@@ -54,3 +54,15 @@ def test_contrib_parts_join_the_weight_free_backbone():
     features = net.extract(crop)
     assert features.desc.shape[1] == 256 + 48 + 48
     assert net.options()["weights"] == {"teblid": 1.0, "normals": 1.0, "color": 0.5}
+
+
+def test_a_mask_with_no_grid_point_gives_no_features():
+    """A mask too thin to hold a grid point (the estimator's own end-effector mask can be a sliver) gives no
+    features, not an error: the frame is then a no-estimate of the template path."""
+    rng = np.random.default_rng(0)
+    mask = np.zeros((128, 128), bool)
+    mask[60, 10:120] = True  # one row: the eroded grid holds no point
+    crop = Crop(rng.integers(0, 256, (128, 128, 3), dtype=np.uint8), np.full((128, 128), 0.5), mask,
+                np.array([[150.0, 0, 64], [0, 150.0, 64], [0, 0, 1]]), np.eye(3))
+    feats = get_backbone(DEFAULT).extract(crop)
+    assert len(feats.uv) == 0 and len(feats.desc) == 0

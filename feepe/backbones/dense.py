@@ -39,7 +39,7 @@ def _pooled(values: np.ndarray, valid: np.ndarray, uv: np.ndarray, cell: int) ->
     x = np.clip(np.round(centres[..., 0]).astype(int), 0, w - 1)
     y = np.clip(np.round(centres[..., 1]).astype(int), 0, h - 1)
     mean = sums[y, x] / np.maximum(counts[y, x], 1.0)[..., None]
-    return mean.reshape(len(uv), -1)
+    return mean.reshape(len(uv), 16 * c)  # 4x4 cells of c values; -1 cannot be inferred for no points
 
 
 @dataclass
