@@ -18,6 +18,7 @@ import trimesh
 
 from kernel.bop import read_frame, read_scene, split_dir
 from kernel.errors import UserError
+from syneepose import paths
 from syneepose.devices import gpu_backend
 from syneepose.robots.robot import load_robot
 
@@ -283,7 +284,7 @@ def test_templates_reproject_onto_their_masks(tmp_path, assets):
     for ee, obj_id in (("robotiq_2f85", 2), ("kinova_3f", 4)):
         folder = set_dir(tmp_path, ee, 3, 2, 48)
         assert len(read_index(folder)) == 6
-        mesh = trimesh.load(Path("assets/models") / f"obj_{obj_id:06d}.ply", process=False)
+        mesh = trimesh.load(paths.models_dir(assets) / f"obj_{obj_id:06d}.ply", process=False)
         mesh.apply_scale(0.001)
         for i in range(6):
             t = read_template(folder, i)

@@ -1,5 +1,6 @@
 """Marker segments, the `handeye` method and the targeting experiment on a small rendered twin pair."""
 
+import csv
 import json
 import subprocess
 import sys
@@ -9,8 +10,9 @@ import pytest
 import yaml
 
 from eval.handeye import BoardDetector
+from eval.methods.base import Estimate
 from kernel.bop import read_frame, read_scene, split_dir
-from kernel.transforms import rotation_angle
+from kernel.transforms import make_T, rotation_angle
 from syneepose.scene.marker import MarkerBoard
 
 CONFIG = "ur5e+robotiq_2f85"
@@ -92,6 +94,82 @@ def test_handeye_method_and_targeting_table(twins, tmp_path):
     table = (tmp_path / "tables" / "targeting.md").read_text()
     assert "marker hand-eye" in table and "| 2 views | 3 views |" in table
     assert (tmp_path / "tables" / "targeting.png").stat().st_size > 10_000
+
+
+def test_targeting_scores_calibrations_whose_errors_are_known(twins, tmp_path, monkeypatch):
+    """The targeting run's numbers against answers known without it. The marker method gets exact board poses
+    moved by a known camera-frame offset d = (3, 0, 4) mm: hand-eye on consistent poses returns the true
+    T_cam_base moved by d, so every workspace point is off by |d| = 5 mm and the rotation by 0 (the solver is
+    exact on exact poses, test_peers; measured here: 5 mm to 2e-12 mm, 1e-13 deg; bound 1e-6). FEEPE's place
+    is taken by a method that gives nothing on its first frame, then the true T_cam_base turned 1 deg about the
+    camera's x axis: its rotation error is 1 deg and a point at c in the camera moves by
+    2 sin(0.5 deg) |(c_y, c_z)|, computed here from the scene's T_cam_base alone. What FEEPE itself achieves is
+    tested on renders (test_eval_feepe, test_feepe_rendered); this checks the run: methods run online with the
+    calibration hidden, each draw's last calibration scored, failures and summaries."""
+    import eval.methods.handeye as handeye_method
+    import eval.targeting as targeting
+    from eval.metrics import WORKSPACE_POINTS
+
+    [scene] = sorted(split_dir(twins / "marker").iterdir())
+    meta, ids = read_scene(scene)
+    board = MarkerBoard.from_json(meta.marker)
+    offset = make_T(np.eye(3), [0.003, 0.0, 0.004])
+    board_poses = {}
+    for i in ids:
+        f = read_frame(scene, i)
+        board_poses[f.rgb.tobytes()] = offset @ meta.T_cam_base @ f.T_base_ee @ board.T_ee_board
+
+    class ExactBoard:  # the detector, with the board pose every frame truly has, moved by the offset
+        def __init__(self, board):
+            pass
+
+        def T_cam_board(self, rgb, K):
+            return board_poses[np.ascontiguousarray(rgb).tobytes()], 99
+
+    angle = np.deg2rad(1.0)
+    turn = make_T(np.array([[1, 0, 0], [0, np.cos(angle), -np.sin(angle)], [0, np.sin(angle), np.cos(angle)]]))
+
+    class Turned:  # in FEEPE's place
+        def options(self):
+            return {"variant": "D"}
+
+        def start_scene(self, scene_meta, scene_dir):
+            assert np.isnan(scene_meta.T_cam_base).all()  # the run hides the calibration from the method
+            self.frames = 0
+
+        def estimate(self, obs):
+            self.frames += 1
+            T = None if self.frames == 1 else turn @ meta.T_cam_base
+            T_cam_ee = None if T is None else T @ obs.T_base_ee
+            return Estimate(T_cam_ee=T_cam_ee, score=0.0, time_s=0.0, T_cam_base=T)
+
+    def build_method(name, opts, build=targeting.build_method):
+        return Turned() if name == "feepe" else build(name, opts)
+
+    monkeypatch.setattr(handeye_method, "BoardDetector", ExactBoard)
+    monkeypatch.setattr(targeting, "build_method", build_method)
+    assert targeting.main(["--marker", str(twins / "marker"), "--plain", str(twins / "plain"), "--views", "2,3",
+                           "--draws", "2", "--out", str(tmp_path / "aim")]) == 0
+
+    cam = WORKSPACE_POINTS @ meta.T_cam_base[:3, :3].T + meta.T_cam_base[:3, 3]
+    turned_mm = np.mean(2 * np.sin(angle / 2) * np.hypot(cam[:, 1], cam[:, 2])) * 1000.0
+    trials = list(csv.DictReader(open(tmp_path / "aim" / "targeting.csv")))
+    assert len(trials) == 2 * 2 * 2  # views x draws x methods
+    for t in trials:
+        views, marker = int(t["views"]), t["method"].startswith("marker")
+        if marker and views < 3:  # hand-eye needs 3 views
+            assert (float(t["points_mm"]), int(t["detected"])) == (np.inf, views)
+        elif marker:
+            assert abs(float(t["points_mm"]) - 5.0) < 1e-6 and float(t["rot_deg"]) < 1e-6 and t["detected"] == "3"
+        else:
+            assert t["method"] == "FEEPE D" and int(t["detected"]) == views - 1
+            assert abs(float(t["points_mm"]) - turned_mm) < 1e-6 and abs(float(t["rot_deg"]) - 1.0) < 1e-9
+    summary = json.loads((tmp_path / "aim" / "targeting.json").read_text())["by_method"]
+    marker = summary["marker hand-eye (near)"]
+    assert marker["2"]["failures"] == 2 and marker["3"]["failures"] == 0
+    assert abs(marker["3"]["points_mm_median"] - 5.0) < 1e-6
+    assert abs(summary["FEEPE D"]["2"]["points_mm_median"] - turned_mm) < 1e-6
+    assert abs(summary["FEEPE D"]["3"]["rot_deg_median"] - 1.0) < 1e-9
 
 
 def test_targeting_refuses_scenes_that_are_not_twins(twins, tmp_path):
