@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from eval.handeye import METHODS, BoardDetector, calibrate
-from eval.ppf import PpfDetector
+from feepe.ppf import PpfDetector
 from feepe.icp import SurfaceModel
 from kernel.errors import UserError
 from kernel.transforms import make_T, rotation_angle, transform_points

@@ -1,4 +1,4 @@
-"""`ppf`: point-pair-feature voting + ICP on each frame's masked depth (no temporal prior; eval/ppf.py).
+"""`ppf`: point-pair-feature voting + ICP on each frame's masked depth (no temporal prior; feepe/ppf.py).
 
 The pose is the model-frame pose in the camera; the end-effector model comes from `<dataset>/models/`.
 """
@@ -10,8 +10,8 @@ from pathlib import Path
 
 from eval.methods import NoOptions, register
 from eval.methods.base import Estimate, Observation
-from eval.ppf import PpfDetector, PpfOptions, scene_cloud
 from feepe.icp import SurfaceModel
+from feepe.ppf import PpfDetector, PpfOptions, scene_cloud
 from kernel.bop import SceneMeta
 from kernel.dataset import Dataset
 

@@ -6,7 +6,11 @@ without normalising them or aligning their signs (opencv_contrib#3223): on a pla
 scaled by ~0.26 and 34-110 deg off. So the voting is written here in numpy, following the paper: pair
 features (distance, three angles) quantised and hashed over the model; every scene reference point votes
 for (model point, rotation about the normal) through the hash table; peaks become poses, poses are
-clustered (votes summed, rotations averaged with SciPy), and the best clusters are refined by ICP.
+clustered (votes summed, rotations averaged with SciPy), and the best clusters are refined by ICP. The
+voting runs compiled (numba), each scene reference point on its own.
+
+The evaluator runs it as a peer on each frame's masked depth (`--method ppf`); the estimator finds the
+whole robot with it when no mask is given (feepe/registration.py).
 """
 
 from __future__ import annotations
@@ -14,8 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from feepe.depth import normal_map, point_map
@@ -91,29 +95,17 @@ class PpfDetector:
         """(votes, T_cam_model) of each scene reference point's best (model point, angle)."""
         R_scene = _to_x_axis(normals)
         refs = np.arange(0, len(points), self.opts.scene_step)
-        tree = cKDTree(points)
+        best = _vote(points, normals, R_scene, refs, self.diameter, self.keys, self.ref, self.alpha, len(self.points),
+                     self.step, self.opts.angle_bins)
         out = []
-        for r in refs:
-            j = np.array([k for k in tree.query_ball_point(points[r], self.diameter) if k != r])
-            if len(j) == 0:
+        for r, (votes, m, b) in zip(refs, best):
+            if votes <= 0:  # no neighbour, or no pair the model has
                 continue
-            keys, alpha_s = self._pairs(points, normals, R_scene, np.full(len(j), r), j)
-            lo, hi = np.searchsorted(self.keys, keys, "left"), np.searchsorted(self.keys, keys, "right")
-            counts = hi - lo
-            if counts.sum() == 0:
-                continue
-            pick = np.repeat(lo - np.cumsum(np.r_[0, counts[:-1]]), counts) + np.arange(counts.sum())
-            theta = np.repeat(alpha_s, counts) - self.alpha[pick]
-            bins = np.floor((theta % (2 * np.pi)) / (2 * np.pi) * self.opts.angle_bins).astype(np.int64)
-            cell = self.ref[pick] * self.opts.angle_bins + bins
-            acc = np.bincount(cell, minlength=len(self.points) * self.opts.angle_bins)
-            best = int(np.argmax(acc))
-            m, b = divmod(best, self.opts.angle_bins)
             angle = (b + 0.5) * 2 * np.pi / self.opts.angle_bins
             T_m = make_T(self.R_ref[m], -self.R_ref[m] @ self.points[m])
             T_s = make_T(R_scene[r], -R_scene[r] @ points[r])
             R_x = make_T(Rotation.from_euler("x", angle).as_matrix())
-            out.append((float(acc[best]), np.linalg.inv(T_s) @ R_x @ T_m))
+            out.append((float(votes), np.linalg.inv(T_s) @ R_x @ T_m))
         return out
 
     def _clusters(self, votes: list[tuple[float, np.ndarray]]) -> list[np.ndarray]:
@@ -139,6 +131,11 @@ class PpfDetector:
             poses.append(make_T(R, np.average([T[:3, 3] for T in Ts], axis=0, weights=ws)))
         return poses
 
+    def hypotheses(self, points: np.ndarray, normals: np.ndarray) -> list[np.ndarray]:
+        """T_cam_model of the best pose clusters among the votes of the scene's (sampled) points, strongest
+        first, before any refinement."""
+        return self._clusters(self._votes(points, normals))
+
     def _refine(self, T: np.ndarray, scene: np.ndarray) -> np.ndarray:
         """Point-to-plane ICP of the model into the scene points (the shared optimiser, one frame)."""
         no_matches = stack([])
@@ -158,13 +155,54 @@ class PpfDetector:
         if len(p) < 4:
             return None
         best, best_fit = None, -1.0
-        for T in self._clusters(self._votes(p, n)):
+        for T in self.hypotheses(p, n):
             T = self._refine(T, points)
             dist, _ = self.surface.tree.query((points - T[:3, 3]) @ T[:3, :3])
             fit = float(np.mean(dist < self.opts.inlier_m))
             if fit > best_fit:
                 best, best_fit = T, fit
         return (best, best_fit) if best is not None else None
+
+
+@numba.njit(cache=True, nogil=True)
+def _pair_key(p, n, q, m, R, step, bins):
+    """The quantised feature of the pair (p -> q) and the angle of q about p's normal once p's normal is turned
+    onto +x, as `PpfDetector._pairs` computes them, in scalars."""
+    dx, dy, dz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
+    dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+    s = max(dist, 1e-12)
+    ux, uy, uz = dx / s, dy / s, dz / s
+    a0 = np.arccos(min(max(n[0] * ux + n[1] * uy + n[2] * uz, -1.0), 1.0))
+    a1 = np.arccos(min(max(m[0] * ux + m[1] * uy + m[2] * uz, -1.0), 1.0))
+    a2 = np.arccos(min(max(n[0] * m[0] + n[1] * m[1] + n[2] * m[2], -1.0), 1.0))
+    width = np.pi / bins
+    key = ((np.int64(np.floor(dist / step)) * bins + np.int64(np.floor(a0 / width))) * bins
+           + np.int64(np.floor(a1 / width))) * bins + np.int64(np.floor(a2 / width))
+    ly = R[1, 0] * dx + R[1, 1] * dy + R[1, 2] * dz
+    lz = R[2, 0] * dx + R[2, 1] * dy + R[2, 2] * dz
+    return key, np.arctan2(lz, ly)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _vote(S, SN, SR, refs, diameter, keys, ref, alpha, n_model, step, bins):
+    """Drost's voting, each reference point on its own: every scene point within the model's diameter forms a
+    pair with it, every model pair of the same key votes for (model point, angle); (votes, model point, angle
+    bin) of its peak, votes 0 when nothing voted. Reference points run on both cores."""
+    out = np.zeros((refs.shape[0], 3), np.int64)
+    for q in numba.prange(refs.shape[0]):
+        r = refs[q]
+        acc = np.zeros(n_model * bins + 1, np.int64)  # + 1: a turn that rounds up to 2 pi lands past the end
+        for j in range(S.shape[0]):
+            dx, dy, dz = S[j, 0] - S[r, 0], S[j, 1] - S[r, 1], S[j, 2] - S[r, 2]
+            if j == r or dx * dx + dy * dy + dz * dz > diameter * diameter:
+                continue
+            key, a_scene = _pair_key(S[r], SN[r], S[j], SN[j], SR[r], step, bins)
+            for t in range(np.searchsorted(keys, key), np.searchsorted(keys, key + 1)):
+                theta = (a_scene - alpha[t]) % (2 * np.pi)
+                acc[ref[t] * bins + np.int64(np.floor(theta / (2 * np.pi) * bins))] += 1
+        best = np.argmax(acc)
+        out[q, 0], out[q, 1], out[q, 2] = acc[best], best // bins, best % bins
+    return out
 
 
 def scene_cloud(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, max_points: int = 4000):
