@@ -20,6 +20,7 @@ from kernel.errors import UserError
 from syneepose.blender.exr import read_passes, srgb_to_linear
 from syneepose.devices import GPU_BACKENDS, gpu_backend
 from syneepose.robots.model import RobotModel
+from syneepose.robots.robot import arm_links
 from syneepose.scene.marker import MarkerBoard
 from syneepose.scene.spec import Distractor, Light, Plane, Surface
 
@@ -202,11 +203,6 @@ def surface_material(name: str, surface: Surface):
     links.new(tex.outputs[output], ramp.inputs["Fac"])
     links.new(ramp.outputs["Color"], bsdf.inputs["Base Color"])
     return mat
-
-
-def arm_links(model: RobotModel, ee_links: set[str]) -> list[str]:
-    """The arm's links that have a mesh, in URDF order: the parts of the robot mask besides the end-effector."""
-    return [lk.name for lk in model.links if lk.visuals and lk.name not in ee_links]
 
 
 class RobotObjects:

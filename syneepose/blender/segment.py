@@ -51,7 +51,7 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scen
         joint_names=list(robot.arm.joints), T_cam_base=inv_T(spec.T_base_cam),
         marker=spec.marker.to_json() if spec.marker is not None else None,
         depth_sensor={"mode": render.depth, "profile": sensor.source} if sensor is not None else None,
-        links=[*bscene.arm_links(robot.model, set(robot.ee_links)), robot.ee_root], settings=settings,
+        links=[*robot.arm_links, robot.ee_root], settings=settings,
         dropped_distractors=spec.dropped_distractors),
         obj_ids=[ee.obj_id for ee in load_catalog().end_effectors.values()])
     todo = [i for i in range(spec.n_frames) if not writer.done(i)]

@@ -34,6 +34,11 @@ def assemble(config: str, arm: RobotModel, ee: RobotModel, flange_link: str) -> 
     return RobotModel(config, arm.links + ee.links, arm.joints + [mount] + ee.joints)
 
 
+def arm_links(model: RobotModel, ee_links: set[str]) -> list[str]:
+    """The links that have a mesh and are not the end-effector's, in URDF order."""
+    return [lk.name for lk in model.links if lk.visuals and lk.name not in ee_links]
+
+
 @dataclass
 class Robot:
     config: str
@@ -58,6 +63,11 @@ class Robot:
                     out.append(j.child)
                     frontier.append(j.child)
         return out
+
+    @property
+    def arm_links(self) -> list[str]:
+        """The arm's links that have a mesh, in URDF order: the robot's parts besides the end-effector."""
+        return arm_links(self.model, set(self.ee_links))
 
     @property
     def arm_joints(self) -> tuple[str, ...]:
