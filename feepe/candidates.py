@@ -17,6 +17,7 @@ from feepe.depth import backproject, depth_at
 from feepe.matching import best_buddies
 from feepe.onboarding import TemplateBank
 from feepe.pnp import solve_pnp
+from feepe.segmentation import Segmentation
 from feepe.silhouette import MaskView
 from kernel.errors import UserError
 
@@ -45,6 +46,7 @@ class FrameCandidates:
     silhouette: MaskView | None = None  # the frame's mask as a distance field (silhouette refinement only)
     parts: np.ndarray | None = None  # (n, 4, 4) T_base of the parts that mask shows: the end-effector (, the arm links)
     robot_starts: list = field(default_factory=list)  # T_cam_base starts from the robot's depth (first frames)
+    segmentation: Segmentation | None = None  # no mask given: the estimator's own (feepe/segmentation.py)
 
 
 @dataclass

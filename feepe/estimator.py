@@ -24,12 +24,14 @@ from feepe.icp import (PlaneTerm, SurfaceModel, associate, depth_agreement, dept
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
-from feepe.robot_starts import model_points, observed_points, robot_starts
+from feepe.registration import depth_fit, register
+from feepe.robot_starts import RobotSamples, observed_points, robot_starts
+from feepe.segmentation import ColourModel, Segmentation, segment
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
                               mean_iou, placed)
 from feepe.symmetry import consensus
 from kernel.errors import UserError
-from kernel.transforms import inv_T, transform_points
+from kernel.transforms import inv_T, rotation_angle, transform_points
 
 VARIANTS = ("A", "B", "C", "D")
 REFINEMENTS = ("none", "silhouette", "silhouette+depth")
@@ -37,6 +39,12 @@ SILHOUETTES = ("ee", "robot")
 IOU_STRIDE = 2  # the refinement's decisions compare mask IoUs on every second pixel
 RENDERER = "zbuffer"  # how the refinement renders masks and tests outlines (feepe/raster.py; before: Embree rays)
 CHOICE = "iou x scaled depth agreement"  # the refinement with depth picks among descents so (before: IoU alone)
+BAND_START_PX = 8.0  # no mask given: the segmentation's band around a calibration that is not yet refined
+BAND_MIN_PX = 2.0  # and around one just refined
+BAND_PER_PX = 3.0  # the next frame's band: this many times how far (px) the last refinement moved the robot
+MAX_HYPOTHESES = 5  # no mask given: the registrations' hypotheses kept and judged as frames arrive
+ACCEPT_AGREE = 0.5  # no mask given: a first calibration needs this share of the robot's depth pixels to agree
+ACCEPT_SEEN_THROUGH = 0.15  # and no more than this share seen through
 MIN_DECREASE = 1e-6  # the refinement's solves stop once a step promises less than this fraction of the cost
 MIN_STEP = 1e-6  # or once a step that failed moves the pose less than this (rad and m: 1 um at the model)
 # The optimisation and the refinement multiply many small matrices (normal equations of N x 6 Jacobians,
@@ -121,9 +129,9 @@ def load_models(path: Path, opts: FeepeOptions) -> tuple[SurfaceModel | None, Si
 @dataclass
 class RobotView:
     """The whole robot in one frame, for `silhouette="robot"`: its visible mask (every link and the
-    end-effector; a robot segmenter's output) and the arm links' poses from forward kinematics, in the
-    order of the `arm` models given to `Estimator.reset`."""
-    mask: np.ndarray  # (H, W) bool
+    end-effector; a robot segmenter's output; None when no mask is given) and the arm links' poses from
+    forward kinematics, in the order of the `arm` models given to `Estimator.reset`."""
+    mask: np.ndarray | None  # (H, W) bool
     T_base_links: np.ndarray  # (n, 4, 4) metres
 
 
@@ -135,6 +143,7 @@ class FrameResult:
     n_candidates: int
     n_key_frames: int
     timings: dict  # ms per stage and "total"
+    masks: dict | None = None  # with no mask given: the estimator's own "ee" and "robot" visible masks, (H, W) bool
 
 
 SILHOUETTE_OPTIONS = ("refine", "silhouette", "silhouette_sigmas_px", "silhouette_rounds", "silhouette_starts",
@@ -192,20 +201,30 @@ class Estimator:
             raise UserError("reset(arm=...) gives the arm's link meshes to the robot's outline; build the Estimator "
                             "with FeepeOptions(refine='silhouette', silhouette='robot') to fit it, or leave arm out")
         self.parts = PartsSilhouette([self.silhouette, *(arm or [])]) if self.silhouette is not None else None
-        self._robot_points = model_points([p.mesh for p in self.parts.parts]) if arm else None
+        self._robot_samples = RobotSamples.of([p.mesh for p in self.parts.parts]) if arm else None
         self.pool = MemoryPool(self.opts.memory_threshold_deg,
                                self.opts.silhouette_memory_m if self.opts.refine != "none" else np.inf)
         self.T_cam_base: np.ndarray | None = None
         self.frame = 0
         self._fitted: tuple[int, float] | None = None  # pool size and mean key-frame IoU at the last refinement
         self.centres = CentreTrack(self.silhouette.centre) if self.silhouette is not None else None
+        self.colour = ColourModel()  # no mask given: the robot's and the background's colours, learned online
+        self._hypotheses: list[list] = []  # no mask given: [T_cam_base, summed depth score] from the registrations
+        self._band_px = BAND_START_PX
 
-    def step(self, rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray,
+    def step(self, rgb: np.ndarray, depth: np.ndarray | None, mask: np.ndarray | None, K: np.ndarray,
              T_base_ee: np.ndarray, robot: RobotView | None = None) -> FrameResult:
         """One frame, online. `mask` is the end-effector's visible mask; `robot` is needed for (and only
-        read by) the robot silhouette."""
+        read by) the robot silhouette. `mask` None: no mask of any kind is given, and the estimator finds
+        the robot and segments it itself (feepe/registration.py, feepe/segmentation.py): it then needs the
+        arm's links (reset(arm=...)) and each frame's link poses (robot=RobotView(None, T_base_links)).
+        `depth` None: an RGB camera (as depth 0 everywhere: no depth)."""
+        depth = np.zeros(np.shape(rgb)[:2]) if depth is None else depth
         _check_inputs(rgb, depth, mask, K, T_base_ee)
         t_start = time.perf_counter()
+        if mask is None:
+            return self._step_unmasked(rgb, np.asarray(depth, float), np.asarray(K, float),
+                                       np.asarray(T_base_ee, float), robot, t_start)
         found = frame_candidates(rgb, depth, np.asarray(mask, bool), K, self.bank, self.backbone, self.opts.single)
         if found is None:
             found = FrameCandidates(np.eye(3), [], 0, {})
@@ -238,7 +257,99 @@ class Estimator:
         T_cam_ee = None if T_cam_base is None else T_cam_base @ T_base_ee
         return FrameResult(T_cam_ee, T_cam_base, score, len(found.candidates), n_keys, timings)
 
-    def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray, timings: dict):
+    def _step_unmasked(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_base_ee: np.ndarray,
+                       robot: RobotView | None, t_start: float) -> FrameResult:
+        """No mask: the robot is found in the first frames' depth (several hypotheses, judged as frames
+        arrive), each frame is segmented at the calibration so far, the template path crops the predicted
+        end-effector, and the robot's outline is fitted to the estimator's own segmentation. A frame before
+        any hypothesis explains its depth well is a no-estimate."""
+        if self._robot_samples is None:
+            raise UserError("with no mask the estimator finds the robot itself: reset(arm=[SilhouetteModel(...), ...]) "
+                            "with the arm's link meshes, on an Estimator with silhouette='robot'")
+        robot = _check_robot(robot, depth.shape, len(self.parts.parts) - 1, masked=False)
+        T_base_parts = np.concatenate([T_base_ee[None], robot.T_base_links])
+        timings: dict = {}
+        with _BLAS.limit(limits=1, user_api="blas"):
+            if self.T_cam_base is None or self.frame < self.opts.robot_start_frames:
+                t0 = time.perf_counter()
+                self._judge_hypotheses(T_base_parts, depth, K)
+                timings["registration"] = 1e3 * (time.perf_counter() - t0)
+            T = self.T_cam_base if self.T_cam_base is not None else (self._hypotheses[0][0] if self._hypotheses else None)
+            if T is None:
+                self.frame += 1
+                timings["total"] = 1e3 * (time.perf_counter() - t_start)
+                return FrameResult(None, None, 0.0, 0, 0, timings)
+            t0 = time.perf_counter()
+            seen = segment(self.parts.coarse, T, T_base_parts, rgb, depth, K, self.colour, self._band_px)
+            timings["segmentation"] = 1e3 * (time.perf_counter() - t0)
+            self._refresh_key_frames(T)
+        found = frame_candidates(rgb, depth, seen.ee, K, self.bank, self.backbone, self.opts.single)
+        if found is None:
+            found = FrameCandidates(np.eye(3), [], 0, {})
+        timings.update(found.timings)
+        found.segmentation, found.parts = seen, T_base_parts
+        found.silhouette = mask_view(seen.robot, K, depth)
+        found.robot_starts = [h[0] for h in self._hypotheses]
+        if self.opts.needs_surface:
+            found.cloud = observed_cloud(depth, seen.ee, K)
+        if self.opts.silhouette_position_starts:
+            self.centres.add(T_base_ee, observed_centre(depth, seen.ee, K))
+        t0 = time.perf_counter()
+        with _BLAS.limit(limits=1, user_api="blas"):
+            T_new, score, n_keys = self._estimate(found, T_base_ee, timings, prior=T)
+            timings["optimisation"] = 1e3 * (time.perf_counter() - t0) - timings.get("refinement", 0.0)
+            t0 = time.perf_counter()
+            self._band_px = float(np.clip(BAND_PER_PX * self.parts.motion_px(placed(T, T_base_parts),
+                                                                           placed(T_new, T_base_parts), K),
+                                          BAND_MIN_PX, BAND_START_PX))
+            seen = segment(self.parts.coarse, T_new, T_base_parts, rgb, depth, K, self.colour, BAND_MIN_PX)
+            self.colour.learn(rgb, seen)
+            found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
+            timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
+            accepted = self.T_cam_base is not None or _explains_depth(self.parts, T_new, T_base_parts, depth, K)
+        self.pool.consider(MemoryEntry(self.frame, T_base_ee, found), need_candidates=False)
+        self.frame += 1
+        timings["total"] = 1e3 * (time.perf_counter() - t_start)
+        if not accepted:
+            return FrameResult(None, None, 0.0, len(found.candidates), n_keys, timings, masks=None)
+        self.T_cam_base = T_new
+        return FrameResult(T_new @ T_base_ee, T_new, score, len(found.candidates), n_keys, timings,
+                           masks={"ee": seen.ee, "robot": seen.robot})
+
+    def _judge_hypotheses(self, T_base_parts: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
+        """The robot found again in this frame's depth (feepe/registration.py); every hypothesis so far and
+        the new ones scored by their depth agreement on this frame, summed over the frames seen."""
+        model = SurfaceModel(*self._robot_samples.placed(T_base_parts))
+        known = [h[0] for h in self._hypotheses]
+        for T in register(model, depth, K, seed=self.frame):
+            if all(rotation_angle(T[:3, :3], U[:3, :3]) > 2.0 or np.linalg.norm(T[:3, 3] - U[:3, 3]) > 0.02
+                   for U in known):
+                self._hypotheses.append([T, 0.0])
+                known.append(T)
+        grid = np.diag([1.0 / IOU_STRIDE, 1.0 / IOU_STRIDE, 1.0]) @ K
+        coarse = depth[::IOU_STRIDE, ::IOU_STRIDE]
+        for h in self._hypotheses:
+            rendered = self.parts.coarse.render_depth(placed(h[0], T_base_parts), grid, coarse.shape)
+            h[1] += depth_fit(rendered, coarse).score
+        self._hypotheses.sort(key=lambda h: -h[1])
+        del self._hypotheses[MAX_HYPOTHESES:]
+
+    def _refresh_key_frames(self, T: np.ndarray) -> None:
+        """Key frames segmented at a calibration that has since moved them by more than a pixel are
+        segmented again at this one (their masks came from the model as it stood)."""
+        for entry in self.pool.entries:
+            seen = entry.found.segmentation
+            if seen is None:
+                continue
+            K = entry.found.silhouette.K
+            if self.parts.motion_px(placed(seen.T_cam_base, entry.found.parts), placed(T, entry.found.parts), K) > 1.0:
+                again = segment(self.parts.coarse, T, entry.found.parts, seen.rgb, seen.depth, K, self.colour,
+                                BAND_MIN_PX)
+                entry.found.segmentation, entry.found.silhouette = again, mask_view(again.robot, K, seen.depth)
+
+    def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray, timings: dict,
+                  prior: np.ndarray | None = None):
+        """`prior`: a calibration to refine when no template candidate is found (no mask given)."""
         opts, cands = self.opts, found.candidates
         if opts.variant == "A":
             if not cands:
@@ -248,7 +359,9 @@ class Estimator:
         views = self._with_key_frames(T_base_ee, found, opts.k_f if opts.variant in ("C", "D") else 0)
         frames = [(T, f.K, f.candidates) for T, f in views]
         if not any(c for _, _, c in frames):
-            return None, 0.0, 0
+            if prior is None:
+                return None, 0.0, 0
+            return self._refined(prior, T_base_ee, found, timings), 0.0, len(frames) - 1
         if opts.variant == "D":
             keep, T_init = consensus([(T, c) for T, _, c in frames], opts.symmetry_tolerance_deg)
             frames = [(T, Kc, [c for c, k in zip(cs, ks) if k]) for (T, Kc, cs), ks in zip(frames, keep)]
@@ -261,15 +374,21 @@ class Estimator:
         if opts.icp:
             T = self._align_depth(T, obs, [(T_b, f.cloud) for T_b, f in views])
         if opts.refine != "none":
-            t0 = time.perf_counter()
-            k = opts.silhouette_key_frames if opts.variant in ("C", "D") else 0  # its own key frames, not D's
-            fitted = self._with_key_frames(T_base_ee, found, k)
-            clouds = [(T_b, f.cloud) for T_b, f in fitted] if opts.depth_in_refinement else []
-            starts = self._starts(T, T_base_ee, found)
-            T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in fitted], clouds)
-            timings["refinement"] = 1e3 * (time.perf_counter() - t0)
+            T = self._refined(T, T_base_ee, found, timings)
         score = float(np.sum(reprojection_px(T, stack(frames[:1])) <= opts.single.pnp_threshold_px))
         return T, score, len(frames) - 1
+
+    def _refined(self, T: np.ndarray, T_base_ee: np.ndarray, found: FrameCandidates, timings: dict) -> np.ndarray:
+        """The silhouette refinement over the current frame and its own key frames, from T and the other starts."""
+        opts = self.opts
+        t0 = time.perf_counter()
+        k = opts.silhouette_key_frames if opts.variant in ("C", "D") else 0  # its own key frames, not D's
+        fitted = self._with_key_frames(T_base_ee, found, k)
+        clouds = [(T_b, f.cloud) for T_b, f in fitted] if opts.depth_in_refinement else []
+        starts = self._starts(T, T_base_ee, found)
+        T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in fitted], clouds)
+        timings["refinement"] = 1e3 * (time.perf_counter() - t0)
+        return T
 
     def _with_key_frames(self, T_base_ee: np.ndarray, found: FrameCandidates, k: int) -> list:
         """The current frame, then k key frames of the memory: (T_base_ee, FrameCandidates) each."""
@@ -301,7 +420,7 @@ class Estimator:
         pivot_cam = observed_centre(depth, mask, K)
         if pivot_cam is None:
             return []
-        model_base = np.concatenate([transform_points(T, P) for P, T in zip(self._robot_points, T_base_parts)])
+        model_base, _ = self._robot_samples.placed(T_base_parts)
         pivot_base = transform_points(T_base_parts[0], self.silhouette.centre[None])[0]
         return robot_starts(model_base, observed_points(depth, robot_mask, K), pivot_base, pivot_cam)
 
@@ -390,21 +509,29 @@ def _init_from(frames) -> np.ndarray:
     return c.T_cam_ee @ inv_T(T_base_ee)
 
 
-def _check_robot(robot: RobotView | None, shape: tuple, n_links: int) -> RobotView:
+def _check_robot(robot: RobotView | None, shape: tuple, n_links: int, masked: bool = True) -> RobotView:
+    """`masked`: the robot's mask is given (the robot's outline); else only the links' poses are read."""
     if n_links == 0:
         raise UserError("silhouette 'robot' needs the arm's link meshes: reset(arm=[SilhouetteModel(...), ...])")
     if robot is None:
         raise UserError("silhouette 'robot' needs each frame's robot view: step(..., robot=RobotView(mask, T_base_links))")
-    mask, T = np.asarray(robot.mask, bool), np.asarray(robot.T_base_links, float)
-    if mask.shape != tuple(shape):
-        raise UserError(f"the robot mask is {mask.shape}, the end-effector mask {tuple(shape)}; pass both for the RGB image")
+    T = np.asarray(robot.T_base_links, float)
     if T.shape != (n_links, 4, 4):
         raise UserError(f"T_base_links is {T.shape}, expected ({n_links}, 4, 4): one pose per arm link given to reset(arm=...)")
+    if not masked:
+        return RobotView(None, T)
+    if robot.mask is None:
+        raise UserError("the robot's outline fits its mask: step(..., robot=RobotView(mask, T_base_links)); with no "
+                        "end-effector mask either, pass mask=None and the estimator segments the robot itself")
+    mask = np.asarray(robot.mask, bool)
+    if mask.shape != tuple(shape):
+        raise UserError(f"the robot mask is {mask.shape}, the end-effector mask {tuple(shape)}; pass both for the RGB image")
     return RobotView(mask, T)
 
 
 def _check_inputs(rgb, depth, mask, K, T_base_ee) -> None:
-    rgb, depth, mask = np.asarray(rgb), np.asarray(depth), np.asarray(mask)
+    rgb, depth = np.asarray(rgb), np.asarray(depth)
+    mask = np.zeros(rgb.shape[:2], bool) if mask is None and rgb.ndim == 3 else np.asarray(mask)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise UserError(f"rgb must be (H, W, 3) uint8, got {rgb.shape} {rgb.dtype}")
     if depth.shape != rgb.shape[:2] or mask.shape != rgb.shape[:2]:
@@ -419,3 +546,14 @@ def _check_inputs(rgb, depth, mask, K, T_base_ee) -> None:
                         "is K for another resolution?")
     if np.shape(T_base_ee) != (4, 4):
         raise UserError(f"T_base_ee must be 4x4, got {np.shape(T_base_ee)}")
+
+
+def _explains_depth(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, depth: np.ndarray,
+                    K: np.ndarray) -> bool:
+    """Whether the robot placed at the calibration agrees with the frame's depth well enough to be a first
+    estimate (no mask given): most of its pixels with depth agree, few are seen through."""
+    grid = np.diag([1.0 / IOU_STRIDE, 1.0 / IOU_STRIDE, 1.0]) @ K
+    coarse = depth[::IOU_STRIDE, ::IOU_STRIDE]
+    found = depth_fit(parts.coarse.render_depth(placed(T_cam_base, T_base_parts), grid, coarse.shape), coarse)
+    return (found.drawn > 0 and found.agree >= ACCEPT_AGREE * found.drawn
+            and found.seen_through <= ACCEPT_SEEN_THROUGH * found.drawn)

@@ -37,9 +37,10 @@ class MemoryPool:
     def _rotations(self) -> np.ndarray:
         return np.stack([e.T_base_ee[:3, :3] for e in self.entries])
 
-    def consider(self, entry: MemoryEntry) -> bool:
-        """Add the frame if it is a new enough view and has any candidate; True when added."""
-        if not entry.found.candidates:
+    def consider(self, entry: MemoryEntry, need_candidates: bool = True) -> bool:
+        """Add the frame if it is a new enough view and has any candidate (or, `need_candidates` False, a
+        mask of its own to fit); True when added."""
+        if need_candidates and not entry.found.candidates:
             return False
         if self.entries:
             near = rotation_angle(self._rotations(), entry.T_base_ee[:3, :3]) <= self.threshold

@@ -11,6 +11,8 @@ ICP. A biased depth still gives a start near the right basin; the silhouette ref
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
@@ -25,11 +27,24 @@ MAX_OBSERVED = 600
 COARSE_POINTS, COARSE_KEEP = 60, 100  # every rotation is scored on an even tenth of the points, the best on all
 
 
-def model_points(meshes: list[trimesh.Trimesh], n: int = 4000) -> list[np.ndarray]:
-    """Surface samples of each part (part frame), spread by area over the whole robot; seeded."""
-    areas = np.array([m.area for m in meshes])
-    counts = np.maximum(20, np.round(n * areas / areas.sum())).astype(int)
-    return [trimesh.sample.sample_surface(m, int(c), seed=0)[0] for m, c in zip(meshes, counts)]
+@dataclass
+class RobotSamples:
+    """Surface samples of each robot part (part frame) with their face normals, spread by area over the whole
+    robot; seeded."""
+    points: list[np.ndarray]
+    normals: list[np.ndarray]
+
+    @classmethod
+    def of(cls, meshes: list[trimesh.Trimesh], n: int = 4000) -> "RobotSamples":
+        areas = np.array([m.area for m in meshes])
+        counts = np.maximum(20, np.round(n * areas / areas.sum())).astype(int)
+        samples = [trimesh.sample.sample_surface(m, int(c), seed=0) for m, c in zip(meshes, counts)]
+        return cls([p for p, _ in samples], [m.face_normals[f] for m, (_, f) in zip(meshes, samples)])
+
+    def placed(self, T_base_parts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every sample and normal in the base frame, the parts placed at `T_base_parts` (n, 4, 4)."""
+        return (np.concatenate([transform_points(T, P) for P, T in zip(self.points, T_base_parts)]),
+                np.concatenate([N @ T[:3, :3].T for N, T in zip(self.normals, T_base_parts)]))
 
 
 def observed_points(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, n: int = MAX_OBSERVED) -> np.ndarray:

@@ -184,6 +184,10 @@ class PartsSilhouette:
         ends = np.cumsum([len(P) for P, _ in found])
         return [P[seen[end - len(P):end]] for (P, _), end in zip(found, ends)]
 
+    def part_depths(self, T_cam_parts: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> list[np.ndarray]:
+        """Each part's own depth at each pixel centre (m, 0 off the part), as if the others were not there."""
+        return [m.render_depth(T, K, shape) for m, T in zip(self.parts, T_cam_parts)]
+
     def render_depth(self, T_cam_parts: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """The nearest part's depth at each pixel centre (m, 0 off the robot)."""
         z = np.zeros(shape)

@@ -5,7 +5,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from feepe.robot_starts import model_points, robot_starts
+from feepe.robot_starts import RobotSamples, robot_starts
 from kernel.transforms import inv_T, make_T, rotation_angle, transform_points
 
 T_CAM_BASE = make_T(Rotation.from_euler("xyz", [-2.0, 0.3, 0.7]).as_matrix(), [0.1, -0.2, 1.4])
@@ -22,7 +22,7 @@ def _arm() -> list[trimesh.Trimesh]:
 
 def test_front_view_with_blobs_and_noise_gives_a_start_near_the_truth():
     meshes = _arm()
-    model = np.concatenate(model_points(meshes))
+    model = np.concatenate(RobotSamples.of(meshes).points)
     rng = np.random.default_rng(1)
     dense = trimesh.util.concatenate(meshes).sample(6000, seed=2)
     in_cam = transform_points(T_CAM_BASE, dense)
@@ -39,5 +39,5 @@ def test_front_view_with_blobs_and_noise_gives_a_start_near_the_truth():
 
 
 def test_too_few_points_give_no_start():
-    model = np.concatenate(model_points(_arm()))
+    model = np.concatenate(RobotSamples.of(_arm()).points)
     assert robot_starts(model, np.zeros((5, 3)), np.zeros(3), np.ones(3)) == []

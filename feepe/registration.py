@@ -1,0 +1,103 @@
+"""A first calibration with no mask (our extension, issue 34; not in the paper): the whole robot, placed by
+forward kinematics of the frame's joint positions, found in the frame's depth.
+
+The depth shows the robot among the floor, walls and objects. The large planes are set aside (RANSAC), the
+robot's surface samples are found among the remaining points by point-pair-feature voting (Drost et al.
+2010, feepe/ppf.py; the robot stands still in its base frame for this one frame, so it is one rigid
+object), and each of the best pose clusters is refined by point-to-plane ICP. The hypotheses are then judged
+on the depth image itself: a calibration under which the model's rendered depth agrees with the sensor's
+explains those pixels, one under which the sensor sees far behind the model's surface is contradicted
+there (free space seen through a robot that would stand in the way).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from feepe.depth import normal_map, point_map
+from feepe.icp import PlaneTerm, SurfaceModel, associate
+from feepe.optimize import OptimizeOptions, optimize, stack
+from feepe.ppf import PpfDetector, PpfOptions, voxel_sample
+from kernel.transforms import rotation_angle
+
+PPF = PpfOptions(sampling=0.04, scene_step=3, hypotheses=8)  # robot-sized: ~4 cm voxels on a 1-1.5 m robot
+PLANE_TOL_M = 0.015  # scene points this close to a large plane belong to it
+PLANE_SHARE = 0.08  # a plane holding this share of the scene's points is background
+MAX_PLANES = 4  # floor and walls
+RANSAC_TRIALS = 200
+ICP_GATES_M = (0.1, 0.01)  # ICP's association gate shrinks from 10 cm to 1 cm over its rounds
+ICP_ROUNDS = 8
+SEEN_THROUGH_WEIGHT = 2.0  # a pixel that sees through the model costs two that agree with it
+
+
+def background_planes(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Which points lie on one of the scene's large planes (up to MAX_PLANES, each holding PLANE_SHARE)."""
+    on_plane = np.zeros(len(points), bool)
+    for _ in range(MAX_PLANES):
+        left = np.flatnonzero(~on_plane)
+        if len(left) < 3 or len(left) < PLANE_SHARE * len(points):
+            break
+        trios = points[left[rng.integers(0, len(left), (RANSAC_TRIALS, 3))]]
+        normals = np.cross(trios[:, 1] - trios[:, 0], trios[:, 2] - trios[:, 0])
+        length = np.linalg.norm(normals, axis=1)
+        ok = length > 1e-9
+        normals, trios = normals[ok] / length[ok, None], trios[ok]
+        distance = np.abs(np.einsum("tj,pj->tp", normals, points[left]) - np.sum(normals * trios[:, 0], 1)[:, None])
+        counts = (distance < PLANE_TOL_M).sum(1)
+        if not len(counts) or counts.max() < PLANE_SHARE * len(points):
+            break
+        on_plane[left[distance[np.argmax(counts)] < PLANE_TOL_M]] = True
+    return on_plane
+
+
+def scene_points(depth: np.ndarray, K: np.ndarray, voxel_m: float, rng: np.random.Generator):
+    """The depth's points and camera-facing normals, one per voxel, without the large planes."""
+    normals, valid = normal_map(depth, K)
+    points, normals = voxel_sample(point_map(depth, K)[valid], normals[valid], voxel_m)
+    keep = ~background_planes(points, rng)
+    return points[keep], normals[keep]
+
+
+def register(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 0) -> list[np.ndarray]:
+    """T_cam_base hypotheses for the robot whose base-frame surface samples are `model`, strongest vote first,
+    each refined by ICP on the scene's points; [] when the depth holds too little."""
+    detector = PpfDetector(model, PPF)
+    points, normals = scene_points(depth, K, detector.step, np.random.default_rng(seed))
+    if len(points) < 10:
+        return []
+    no_matches = stack([])
+    out = []
+    for T in detector.hypotheses(points, normals):
+        for gate in np.linspace(*ICP_GATES_M, ICP_ROUNDS):
+            planes = associate(T, [(np.eye(4), points)], model, gate)
+            if len(planes.target_cam) < 6:
+                break
+            T, _ = optimize(T, no_matches, OptimizeOptions(max_iterations=10), [PlaneTerm(planes, PLANE_TOL_M / 3)])
+        if all(rotation_angle(T[:3, :3], U[:3, :3]) > 2.0 or np.linalg.norm(T[:3, 3] - U[:3, 3]) > 0.02 for U in out):
+            out.append(T)
+    return out
+
+
+@dataclass
+class DepthFit:
+    """How a calibration's rendered robot depth meets the sensor's, in pixels (on the strided grid)."""
+    agree: int  # within the sensor's noise of the model's surface
+    seen_through: int  # the sensor sees well behind the model's surface: the model cannot stand there
+    drawn: int  # model pixels where the sensor has depth
+
+    @property
+    def score(self) -> float:
+        return self.agree - SEEN_THROUGH_WEIGHT * self.seen_through
+
+
+def depth_fit(rendered: np.ndarray, depth: np.ndarray, noise_m: float = 0.01,
+                    noise_z2: float = 0.005) -> DepthFit:
+    """rendered: the model's depth (m, 0 off it) on the grid of `depth`. The tolerance noise_m + noise_z2 z^2
+    (1.5 cm at 1 m) holds a stereo camera's noise and a few millimetres of calibration error."""
+    drawn = (rendered > 0) & (depth > 0)
+    tolerance = noise_m + noise_z2 * rendered**2
+    return DepthFit(int(np.count_nonzero(drawn & (np.abs(depth - rendered) < tolerance))),
+                          int(np.count_nonzero(drawn & (depth > rendered + tolerance))),
+                          int(np.count_nonzero(drawn)))

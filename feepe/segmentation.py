@@ -1,0 +1,149 @@
+"""The estimator's own segmentation (our extension, issue 34; not in the paper): which pixels show the robot,
+and which of them the end-effector, read off the robot model placed at a calibration, the image's colours
+and its depth - no mask handed in.
+
+Region-based trackers (PWP3D, RBOT, SRT3D, ICG and M3T of DLR-RM's 3DObjectTracking) learn colour
+statistics inside and outside an object's projected outline and read each pixel's foreground probability
+off them. Ours sums three log-odds per pixel: where the pixel lies against the predicted outline (a ramp
+across a band as wide as the calibration is uncertain, so only the band is decided by the image), the
+colour histograms learned online from the frames' confident pixels, and the depth's agreement with the
+model's surface next to the pixel (a pixel whose depth lies far behind it sees past the robot, one far in
+front sees an occluder; a stereo hole says nothing). The robot's probability is what the outline term fits;
+its 0.5 level is the robot's mask and, where the nearest model part is the end-effector, the end-effector's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+BINS = 16  # colour histogram levels per RGB channel (16^3 bins), as RBOT's 32^3 on a smaller image
+PRIOR_LOGODDS = 4.0  # the ramp's log-odds at the band's edges (P = 0.98 inside, 0.02 outside). Inside it stays
+# there, so depth that clearly contradicts the model (DEPTH_CLIP) outweighs it: an occluder deep inside the outline;
+# outside it keeps falling, PRIOR_LOGODDS per band width, to PRIOR_FLOOR: what lies bands away from where the
+# robot can be is not robot, whatever the floor it touches or its colour say
+PRIOR_FLOOR = -30.0
+COLOUR_CLIP = 3.0  # a histogram ratio counts at most this much: a colour seen once must not decide
+DEPTH_CLIP = (-6.0, 4.5)  # depth's log-odds range: a pixel far behind the model is firm evidence
+DEPTH_RANGE_M = 3.0  # the background's depth spread: its likelihood is uniform over it
+LOCAL_PX = 20.0  # background colours are learned within this distance of the robot's outline
+EDGE_PX = 2.0  # and neither they nor the robot's this close to it
+
+
+@dataclass
+class ModelView:
+    """The robot model placed in one image: each pixel's nearest part (-1 off the robot) and depth, both
+    carried into the band around the outline from the nearest model pixel, and the signed distance to the
+    predicted outline (px, > 0 inside)."""
+    part: np.ndarray  # (H, W) int: nearest model part (0 the end-effector), -1 where no part is drawn
+    depth: np.ndarray  # (H, W) metres: the model's depth at the pixel or at its nearest model pixel
+    inside: np.ndarray  # (H, W) signed distance to the predicted outline, px, > 0 inside
+
+
+def model_view(part_depths: list[np.ndarray]) -> ModelView:
+    """From each part's rendered depth (m, 0 off the part), as `PartsSilhouette.part_depths` gives them."""
+    z = np.stack(part_depths)
+    shown = z > 0
+    drawn = shown.any(0)
+    part = np.where(drawn, np.argmin(np.where(shown, z, np.inf), 0), -1)
+    depth = np.where(drawn, np.min(np.where(shown, z, np.inf), 0), 0.0)
+    if not drawn.any():
+        return ModelView(part, depth, np.full(drawn.shape, -np.inf))
+    off = (~drawn).astype(np.uint8)
+    outside, label = cv2.distanceTransformWithLabels(off, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+    on = np.flatnonzero(drawn.ravel())  # labels number the drawn pixels in row-major order
+    nearest = on[label.ravel() - 1].reshape(drawn.shape)
+    inside = cv2.distanceTransform(drawn.astype(np.uint8), cv2.DIST_L2, 5)
+    signed = np.where(drawn, inside - 0.5, 0.5 - outside)
+    return ModelView(part.ravel()[nearest], depth.ravel()[nearest], signed.astype(np.float32))
+
+
+class ColourModel:
+    """Robot and background colour histograms, updated online (RBOT's alpha-blend of frame histograms)."""
+
+    def __init__(self, rate: float = 0.3):
+        self.rate = rate
+        self.fg: np.ndarray | None = None
+        self.bg: np.ndarray | None = None
+
+    @staticmethod
+    def bins(rgb: np.ndarray) -> np.ndarray:
+        q = (np.asarray(rgb, np.uint16) * BINS) >> 8
+        return (q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]
+
+    def update(self, rgb: np.ndarray, fg: np.ndarray, bg: np.ndarray) -> None:
+        """Learn from the pixels `fg` (robot) and `bg` (around it)."""
+        b = self.bins(rgb)
+        if fg.sum() < 50 or bg.sum() < 50:
+            return
+        new_fg = np.bincount(b[fg], minlength=BINS**3).astype(float)
+        new_bg = np.bincount(b[bg], minlength=BINS**3).astype(float)
+        new_fg /= new_fg.sum()
+        new_bg /= new_bg.sum()
+        if self.fg is None:
+            self.fg, self.bg = new_fg, new_bg
+        else:
+            self.fg = (1 - self.rate) * self.fg + self.rate * new_fg
+            self.bg = (1 - self.rate) * self.bg + self.rate * new_bg
+
+    def learn(self, rgb: np.ndarray, seen: "Segmentation") -> None:
+        """Robot colours from its confident pixels, background colours from the confident pixels around it
+        (within LOCAL_PX of the predicted outline: the local background, as RBOT's local regions); neither
+        within EDGE_PX of the outline, where pixels blend the two."""
+        inside = seen.view.inside
+        self.update(rgb, (seen.probability > 0.9) & (inside >= EDGE_PX),
+                    (seen.probability < 0.1) & (inside <= -EDGE_PX) & (inside > -LOCAL_PX))
+
+    def logodds(self, rgb: np.ndarray) -> np.ndarray:
+        """log P(colour | robot) / P(colour | background) per pixel; 0 before anything was learned."""
+        if self.fg is None:
+            return np.zeros(np.shape(rgb)[:2], np.float32)
+        eps = 1.0 / BINS**3
+        ratio = np.log((self.fg + eps) / (self.bg + eps)).astype(np.float32)
+        return np.clip(ratio[self.bins(rgb)], -COLOUR_CLIP, COLOUR_CLIP)
+
+
+def depth_logodds(depth: np.ndarray, view: ModelView, sigma_m: float) -> np.ndarray:
+    """Per pixel: the observed depth against the model's next to it, robot (Gaussian of the difference)
+    against background (uniform over DEPTH_RANGE_M); 0 where the sensor has no depth or no model is near."""
+    d = np.asarray(depth, float) - view.depth
+    out = np.log(DEPTH_RANGE_M / (sigma_m * np.sqrt(2 * np.pi))) - 0.5 * (d / sigma_m) ** 2
+    out = np.clip(out, *DEPTH_CLIP)
+    return np.where((depth > 0) & (view.depth > 0), out, 0.0).astype(np.float32)
+
+
+def robot_probability(rgb: np.ndarray, depth: np.ndarray | None, view: ModelView, colour: ColourModel,
+                      band_px: float, sigma_m: float) -> np.ndarray:
+    """P(robot) per pixel: the outline prior, the colours and the depth, summed as log-odds."""
+    prior = np.clip(view.inside / max(band_px, 0.5) * PRIOR_LOGODDS, PRIOR_FLOOR, PRIOR_LOGODDS)
+    logodds = prior + colour.logodds(rgb)
+    if depth is not None:
+        logodds += depth_logodds(depth, view, sigma_m)
+    return (1.0 / (1.0 + np.exp(-logodds))).astype(np.float32)
+
+
+@dataclass
+class Segmentation:
+    """One frame as the estimator segmented it at a calibration, and what it needs to do so again once the
+    calibration moves."""
+    rgb: np.ndarray
+    depth: np.ndarray
+    T_cam_base: np.ndarray  # the calibration the model was placed at
+    view: ModelView
+    probability: np.ndarray  # (H, W) P(robot)
+    robot: np.ndarray  # (H, W) bool: the robot's visible mask, P > 0.5
+    ee: np.ndarray  # (H, W) bool: those of its pixels whose nearest model part is the end-effector
+
+
+def segment(parts, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
+            K: np.ndarray, colour: "ColourModel", band_px: float, sigma_m: float = 0.01) -> Segmentation:
+    """`parts`: the robot's PartsSilhouette (the end-effector first), placed at T_cam_base by `T_base_parts`.
+    The depth's scale `sigma_m` holds a stereo camera's noise and a few millimetres of calibration error."""
+    T_cam_parts = np.einsum("ij,njk->nik", T_cam_base, T_base_parts)
+    view = model_view(parts.part_depths(T_cam_parts, K, depth.shape))
+    probability = robot_probability(rgb, depth if (depth > 0).any() else None, view, colour, band_px, sigma_m)
+    robot = probability > 0.5
+    return Segmentation(rgb, depth, np.asarray(T_cam_base, float), view, probability, robot,
+                        robot & (view.part == 0))
