@@ -32,6 +32,8 @@ class FrameErrors:
     score: float
     wall_s: float  # the runner's clock around the method's `estimate` call
     calib_points_mm: float = math.nan  # calibration error at eval.metrics.WORKSPACE_POINTS (mean distance)
+    ee_mask_iou: float = math.nan  # the method's own end-effector mask against mask_visib/ (none made: empty)
+    robot_mask_iou: float = math.nan  # the method's own robot mask against the robot's visible mask
 
     @property
     def failed(self) -> bool:
@@ -39,7 +41,8 @@ class FrameErrors:
 
 
 COLUMNS = [f.name for f in fields(FrameErrors)]
-ADDED = ("calib_points_mm",)  # columns later than the first errors.csv files: absent reads as unknown
+ADDED = ("calib_points_mm", "ee_mask_iou", "robot_mask_iou")  # columns later than the first errors.csv files:
+# absent reads as unknown
 _INTS, _STRS = {"scene_id", "im_id", "obj_id"}, {"config", "end_effector"}
 
 
@@ -73,7 +76,7 @@ def read_errors(path: Path) -> list[FrameErrors]:
     with path.open(newline="") as f:
         reader = csv.DictReader(f)
         names = reader.fieldnames or []
-        if names != COLUMNS and names != [c for c in COLUMNS if c not in ADDED]:
+        if names != [c for c in COLUMNS if c in names] or not set(COLUMNS) - set(names) <= set(ADDED):
             raise UserError(f"{path}: columns {reader.fieldnames} are not those of python -m eval.run; run it again")
         try:
             return [FrameErrors(**{name: _value(name, row[name]) for name in names}) for row in reader]

@@ -32,11 +32,11 @@ from eval.metrics import WORKSPACE_POINTS, add, adds, calibration_error, rotatio
 from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
-from kernel.bop import complete_frames
+from kernel.bop import complete_frames, image_path, object_mask_path
 from kernel.cli import run_command
 from kernel.dataset import Dataset, Scene
 from kernel.errors import UserError
-from kernel.files import read_json, write_atomic
+from kernel.files import read_json, write_atomic, write_png
 from kernel.settings import comma_list
 
 NO_POSE = np.full((4, 4), np.nan)
@@ -72,20 +72,28 @@ def find_scenes(dataset: Dataset, scenes: str | None, robots: str | None) -> lis
     return found
 
 
-def observation(scene: Scene, im_id: int, depth_dir: str, noise: MaskNoise | None):
-    """The observation a method sees and the ground truth T_cam_ee it is scored against."""
+NO_DEPTH = "none"  # --depth-dir none: the method sees no depth (an RGB camera)
+MASKS = ("given", "none")  # --masks: the data set's masks are handed in (perhaps perturbed), or no mask at all
+
+
+def observation(scene: Scene, im_id: int, depth_dir: str, noise: MaskNoise | None, masks: str = "given"):
+    """The observation a method sees, the ground truth T_cam_ee it is scored against, and the true visible
+    masks (end-effector, robot or None) its own masks are scored against."""
     frame = scene.frame(im_id)
     robot = None if frame.link_ids is None else frame.link_ids > 0
-    if noise is not None:  # the end-effector's draw first: runs from before robot masks see the same masks
+    truth = (frame.mask_visib, robot)
+    if masks == "none":
+        mask = robot = None
+    elif noise is not None:  # the end-effector's draw first: runs from before robot masks see the same masks
         rng = frame_rng(noise, scene.scene_id, im_id)
         mask = perturb(frame.mask_visib, noise, rng)
         robot = None if robot is None else perturb(robot, noise, rng)
     else:
         mask = frame.mask_visib
-    depth = frame.depth if depth_dir == "depth" else scene.depth(im_id, depth_dir)
+    depth = (None if depth_dir == NO_DEPTH else frame.depth if depth_dir == "depth" else scene.depth(im_id, depth_dir))
     obs = Observation(im_id=im_id, rgb=frame.rgb, depth=depth, mask=mask, K=frame.K,
                       joint_positions=frame.joint_positions, T_base_ee=frame.T_base_ee, robot_mask=robot)
-    return obs, frame.T_cam_ee
+    return obs, frame.T_cam_ee, truth
 
 
 def _pose(T) -> np.ndarray:
@@ -99,8 +107,25 @@ def _pose_errors(scene: Scene, im_ids: list[int], T_est: np.ndarray, T_gt: np.nd
     return add(T_est, T_gt, points, weights), adds(T_est, T_gt, points, model.tree, weights)
 
 
+def mask_ious(estimate: Estimate, truth: tuple) -> tuple[float, float]:
+    """IoU of the method's own end-effector and robot masks against the true visible ones: NaN when the
+    method makes no masks (`masks` None), 0 for a mask it makes but left out of this frame."""
+    made = estimate.masks
+    if made is None:
+        return np.nan, np.nan
+    out = []
+    for name, true in zip(("ee", "robot"), truth):
+        if true is None:
+            out.append(np.nan)
+            continue
+        mine = made.get(name, np.zeros_like(true))
+        union = np.count_nonzero(mine | true)
+        out.append(np.count_nonzero(mine & true) / union if union else 1.0)
+    return out[0], out[1]
+
+
 def score_scene(scene: Scene, T_gt: np.ndarray, estimates: list[Estimate], wall_s: list[float],
-                model: EvalModel) -> list[FrameErrors]:
+                model: EvalModel, ious: list[tuple[float, float]] | None = None) -> list[FrameErrors]:
     T_est = np.stack([_pose(e.T_cam_ee) for e in estimates])
     T_base = np.stack([_pose(e.T_cam_base) for e in estimates])
     add_m, adds_m = _pose_errors(scene, scene.im_ids, T_est, T_gt, model)
@@ -113,7 +138,9 @@ def score_scene(scene: Scene, T_gt: np.ndarray, estimates: list[Estimate], wall_
                         rot_err_deg=float(rot[i]), trans_err_mm=float(trans[i]),
                         calib_trans_mm=float(calib_trans[i]), calib_rot_deg=float(calib_rot[i]),
                         time_s=float(e.time_s), score=float(e.score) if e.T_cam_ee is not None else np.nan,
-                        wall_s=wall_s[i], calib_points_mm=float(calib_points[i]))
+                        wall_s=wall_s[i], calib_points_mm=float(calib_points[i]),
+                        ee_mask_iou=float(ious[i][0]) if ious else np.nan,
+                        robot_mask_iou=float(ious[i][1]) if ious else np.nan)
             for i, (im_id, e) in enumerate(zip(scene.im_ids, estimates))]
 
 
@@ -129,21 +156,41 @@ def rescore_scene(out: Path, scene: Scene, model: EvalModel) -> list[FrameErrors
     return [dataclasses.replace(r, add_m=float(a), adds_m=float(b)) for r, a, b in zip(rows, add_m, adds_m)]
 
 
-def run_scene(method, scene: Scene, depth_dir: str, model: EvalModel, bar,
-              noise: MaskNoise | None = None) -> tuple[list, list]:
-    """The method over one scene in frame order; returns its BOP results and its error rows."""
+def run_scene(method, scene: Scene, depth_dir: str, model: EvalModel, bar, noise: MaskNoise | None = None,
+              masks: str = "given", out: Path | None = None) -> tuple[list, list]:
+    """The method over one scene in frame order; returns its BOP results and its error rows. The masks a
+    method makes itself go to `out`/masks/ (own_masks_dir)."""
     method.start_scene(dataclasses.replace(scene.meta, T_cam_base=NO_POSE.copy()), scene.path)
-    T_gt, estimates, wall_s = [], [], []
+    T_gt, estimates, wall_s, ious = [], [], [], []
     for im_id in scene.im_ids:
-        obs, T_cam_ee = observation(scene, im_id, depth_dir, noise)
+        obs, T_cam_ee, truth = observation(scene, im_id, depth_dir, noise, masks)
         start = time.perf_counter()
-        estimates.append(method.estimate(obs))
+        estimate = method.estimate(obs)
         wall_s.append(time.perf_counter() - start)
+        estimates.append(estimate)
+        ious.append(mask_ious(estimate, truth))
+        if estimate.masks and out is not None:
+            write_own_masks(out, scene.scene_id, im_id, estimate.masks)
         T_gt.append(T_cam_ee)
         bar.update()
     results = [BopResult(scene.scene_id, im_id, scene.meta.obj_id, e.score, e.T_cam_ee, e.time_s)
                for im_id, e in zip(scene.im_ids, estimates) if e.T_cam_ee is not None]
-    return results, score_scene(scene, np.stack(T_gt), estimates, wall_s, model)
+    return results, score_scene(scene, np.stack(T_gt), estimates, wall_s, model, ious)
+
+
+def own_masks_dir(out: Path, scene_id: int) -> Path:
+    """Where a run keeps the masks its method made, as a BOP scene keeps its own: mask_visib/ (the
+    end-effector, `<im_id>_000000.png`) and robot_mask/ (the whole robot), 0 or 255 per pixel."""
+    return Path(out) / "masks" / f"{scene_id:06d}"
+
+
+def write_own_masks(out: Path, scene_id: int, im_id: int, masks: dict) -> None:
+    folder = own_masks_dir(out, scene_id)
+    for name, path in (("ee", object_mask_path(folder, "mask_visib", im_id)),
+                       ("robot", image_path(folder, "robot_mask", im_id))):
+        if name in masks:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_png(path, np.asarray(masks[name], bool).astype(np.uint8) * 255)
 
 
 def _scene_files(out: Path, scene_id: int) -> tuple[Path, Path, Path]:
@@ -237,20 +284,30 @@ def _git_commit() -> str | None:
 
 
 def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: str | None = None,
-             robots: str | None = None, depth_dir: str = "depth", noise: MaskNoise | None = None) -> dict:
+             robots: str | None = None, depth_dir: str = "depth", noise: MaskNoise | None = None,
+             masks: str = "given") -> dict:
     """Runs (or resumes) the evaluation and returns the summary it wrote to <out>/summary.json."""
+    if masks not in MASKS:
+        raise UserError(f"--masks {masks!r}: choose given (the data set's masks) or none (no mask of any kind)")
+    if masks == "none" and noise is not None:
+        raise UserError("--mask-noise perturbs the masks handed in; with --masks none there are none: leave it out")
     method = build_method(method_name, options)
+    if hasattr(method, "given"):
+        method.given(masks=masks == "given", depth=depth_dir != NO_DEPTH)
     data, out = Dataset(Path(dataset).resolve()), Path(out)
     dataset, info, opts, split = data.root, data.info, method.options(), data.split
     selected = find_scenes(data, scenes, robots)
     identity = {"method": method_name, "options": opts, "dataset": str(dataset), "depth_dir": depth_dir}
     if noise is not None:  # only when on: runs on exact masks keep the identity they had before the option
         identity["mask_noise"] = noise.describe()
+    if masks != "given":  # as mask_noise: runs with the data set's masks keep their identity
+        identity["masks"] = masks
     models = {obj_id: load_eval_model(dataset, obj_id) for obj_id in sorted({s.meta.obj_id for s in selected})}
     if hasattr(method, "check"):
         method.check({i: complete_frames(p) for i, p in data.scene_dirs().items()}, data.split_dir)
     _claim(out, identity)
-    fingerprints = {s.scene_id: scene_fingerprint(s, depth_dir, models[s.meta.obj_id].sha256,
+    fingerprints = {s.scene_id: scene_fingerprint(s, None if depth_dir == NO_DEPTH else depth_dir,
+                                                  models[s.meta.obj_id].sha256,
                                                   _method_inputs(method, s), QUERY_RULE) for s in selected}
     todo, rescore, said = [], [], {}
     for scene in selected:
@@ -269,7 +326,7 @@ def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: 
                initial=sum(len(s.im_ids) for s in selected) - sum(len(s.im_ids) for s in todo))
     try:
         for scene in todo:
-            results, errors = run_scene(method, scene, depth_dir, models[scene.meta.obj_id], bar, noise)
+            results, errors = run_scene(method, scene, depth_dir, models[scene.meta.obj_id], bar, noise, masks, out)
             _store_scene(out, scene.scene_id, fingerprints[scene.scene_id], errors, results)
     except BaseException:
         bar.leave = False
@@ -380,7 +437,10 @@ def main(argv=None) -> int:
     parser.add_argument("--out", required=True, help="result folder (resumed if it holds the same run)")
     parser.add_argument("--scenes", help="comma-separated scene ids (default: all)")
     parser.add_argument("--robots", help="comma-separated ARM+EE configurations (default: all)")
-    parser.add_argument("--depth-dir", default="depth", help="depth folder of each scene (e.g. depth_gt)")
+    parser.add_argument("--depth-dir", default="depth", help="depth folder of each scene (e.g. depth_gt), or none: "
+                        "the method sees no depth (an RGB camera)")
+    parser.add_argument("--masks", default="given", choices=MASKS, help="given (the data set's masks, default; "
+                        "--mask-noise perturbs them) or none: the method gets no mask of any kind")
     parser.add_argument("--mask-noise", default="none", help="none (the data set's exact masks, default) or sam: "
                         "masks perturbed as a segmenter's (boundary shifted 1-4 px, false blobs, holes; our model)")
     parser.add_argument("--mask-seed", type=int, default=0, help="seed of the mask perturbation (default 0)")
@@ -389,7 +449,7 @@ def main(argv=None) -> int:
     def action() -> str:
         options = method_options(parser, argv, args.method)
         summary = evaluate(args.method, options, Path(args.dataset), Path(args.out), args.scenes, args.robots,
-                           args.depth_dir, mask_noise(args.mask_noise, args.mask_seed))
+                           args.depth_dir, mask_noise(args.mask_noise, args.mask_seed), args.masks)
         avg = summary["average"]
         return (f"eval: {summary['n_frames']} frames, {summary['n_failures']} failures; AUC@1cm ADD "
                 f"{avg['add@1cm']:.2f} ADD-S {avg['adds@1cm']:.2f} (mean over end-effectors); {args.out}/summary.json")

@@ -66,6 +66,15 @@ def summarise(rows: list[FrameErrors]) -> dict:
                         "rot_deg": _stats([r.calib_rot_deg for r in rows]),
                         "points_mm": _stats([r.calib_points_mm for r in rows]),
                         "frame_15": _calibration_at(rows, 14)},
+        "own_masks": _own_masks(rows),
         "ms_per_frame": _ms([r.time_s for r in rows]),
         "wall_ms_per_frame": _ms([r.wall_s for r in rows]),
     }
+
+
+def _own_masks(rows: list[FrameErrors]) -> dict | None:
+    """The IoUs of the masks the method made itself (no mask given), over the frames it made one for."""
+    if all(math.isnan(r.ee_mask_iou) and math.isnan(r.robot_mask_iou) for r in rows):
+        return None
+    return {"n_frames": sum(not math.isnan(r.ee_mask_iou) for r in rows),
+            "ee_iou": _stats([r.ee_mask_iou for r in rows]), "robot_iou": _stats([r.robot_mask_iou for r in rows])}

@@ -477,3 +477,27 @@ def test_mask_noise_reaches_the_method_seeded_and_claims_the_out_folder(dataset,
     assert run.main(["--method", "test-probe", "--dataset", str(dataset), "--out", str(tmp_path / "c"),
                      "--mask-noise", "blur"]) == 2
     assert "--mask-noise 'blur' unknown" in _one_error_line(capsys.readouterr().err)
+
+
+def test_masks_none_hands_in_no_mask_and_scores_the_masks_the_method_made(tiny_dataset, tmp_path, capsys):
+    """`--masks none`: FEEPE gets no mask of any kind, finds and segments the robot itself; its masks are written
+    as a BOP scene keeps them and scored against the true visible masks (errors.csv, summary.json)."""
+    out = tmp_path / "none"
+    assert run.main(["--method", "feepe", "--dataset", str(tiny_dataset), "--masks", "none", "--robots",
+                     "ur5e+robotiq_2f85", "--out", str(out)]) == 0
+    [errors] = list((out / "scenes").glob("*.errors.csv"))
+    rows = read_errors(errors)
+    scene_id = rows[0].scene_id
+    masks = run.own_masks_dir(out, scene_id)
+    assert all(r.ee_mask_iou > 0.8 and r.robot_mask_iou > 0.9 for r in rows), [(r.ee_mask_iou, r.robot_mask_iou) for r in rows]
+    assert sorted(p.name for p in (masks / "mask_visib").iterdir()) == [f"{r.im_id:06d}_000000.png" for r in rows]
+    assert len(list((masks / "robot_mask").iterdir())) == len(rows)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["own_masks"]["n_frames"] == len(rows) and summary["own_masks"]["robot_iou"]["median"] > 0.9
+    assert json.loads((out / "run.json").read_text())["masks"] == "none"
+    for argv, words in ((["--method", "feepe", "--masks", "none", "--mask-noise", "sam"], "--mask-noise"),
+                        (["--method", "ppf", "--masks", "none"], "needs --masks given")):
+        capsys.readouterr()
+        assert run.main([*argv, "--dataset", str(tiny_dataset), "--out", str(tmp_path / "refused")]) == 2
+        assert words in _one_error_line(capsys.readouterr().err)
+    assert not (tmp_path / "refused").exists()

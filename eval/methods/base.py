@@ -16,8 +16,9 @@ from kernel.bop import SceneMeta
 class Observation:
     im_id: int
     rgb: np.ndarray  # (H, W, 3) uint8
-    depth: np.ndarray  # (H, W) metres, 0 = no depth
-    mask: np.ndarray  # (H, W) bool: the visible end-effector (the paper gives every method GT masks)
+    depth: np.ndarray | None  # (H, W) metres, 0 = no depth; None with `--depth-dir none` (an RGB camera)
+    mask: np.ndarray | None  # (H, W) bool: the visible end-effector (the paper gives every method GT masks);
+    # None with `--masks none`: no mask of any kind
     K: np.ndarray  # (3, 3)
     joint_positions: np.ndarray  # (n,)
     T_base_ee: np.ndarray  # (4, 4) metres, forward kinematics of the joint positions
@@ -31,6 +32,8 @@ class Estimate:
     time_s: float  # the method's own time for this frame (BOP `time`); -1 unknown
     T_cam_base: np.ndarray | None = None  # the camera-to-base calibration so far, if the method makes one
     extra: dict = field(default_factory=dict)
+    masks: dict | None = None  # the method's own visible masks, "ee" and "robot" (H, W) bool, when it makes them
+    # ({} for a frame it has none for); None: it makes no masks
 
 
 class Method(Protocol):
@@ -49,6 +52,11 @@ class Method(Protocol):
     def check(self, scenes: dict[int, list[int]], split_dir: Path) -> None:
         """Optional: validate what the method reads against the data set (scene id -> frame ids) before the
         run writes anything; raise UserError naming the file and the problem."""
+
+    def given(self, masks: bool, depth: bool) -> None:
+        """Optional: told once, before the run writes anything, whether the observations will hold masks
+        (`--masks given`) and depth (not `--depth-dir none`); raise UserError when the method needs what is
+        not given, or set itself up for what is."""
 
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
         """Optional: the files or folders the method reads for this scene besides its frames (templates,

@@ -10,6 +10,7 @@ poses from forward kinematics of each frame's joint positions, as a user with th
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -90,6 +91,13 @@ class Feepe:
                 "k_r": self.opts.single.k_r, "k_f": self.opts.k_f, "bow_assignment": self.bow_assignment,
                 "estimator": describe(self.opts, self.backbone)}
 
+    def given(self, masks: bool, depth: bool) -> None:
+        """With no mask given the estimator finds and segments the robot itself, so it fits the robot's
+        outline (the refinement on, `silhouette robot`: the arm's meshes from the URDF)."""
+        if not masks:
+            self.opts = dataclasses.replace(self.opts, silhouette="robot",
+                                            refine=self.opts.refine if self.opts.refine != "none" else "silhouette")
+
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
         """The template set of the scene's end-effector, the model `--icp` / `--refine` align, and for the
         robot's outline the arm's URDF and link meshes."""
@@ -130,28 +138,27 @@ class Feepe:
     def estimate(self, obs: Observation) -> Estimate:
         robot = None
         if self._arm is not None:
-            if obs.robot_mask is None:
+            if obs.robot_mask is None and obs.mask is not None:
                 raise UserError(f"frame {obs.im_id}: --silhouette robot needs its robot mask (robot_mask_visib/)")
             robot = robot_view(self._arm, obs.robot_mask, obs.joint_positions)
         r = self._current.step(obs.rgb, obs.depth, obs.mask, obs.K, obs.T_base_ee, robot)
         return Estimate(T_cam_ee=r.T_cam_ee, score=r.score, time_s=r.timings["total"] / 1000.0,
-                        T_cam_base=r.T_cam_base, extra={"timings_ms": r.timings, "n_key_frames": r.n_key_frames})
+                        T_cam_base=r.T_cam_base, extra={"timings_ms": r.timings, "n_key_frames": r.n_key_frames},
+                        masks=r.masks if r.masks is not None or obs.mask is not None else {})
 
 
 def arm_models(meta: SceneMeta) -> tuple:
     """(Robot, the arm links with a mesh, their silhouette models) for a scene rendered with robot masks."""
     from syneepose.robots.robot import load_robot
 
-    config = f"{meta.arm}+{meta.end_effector}"
-    if not meta.links:
-        raise UserError(f"--silhouette robot needs the robot's visible mask, robot_mask_visib/, which this "
-                        f"{config} scene lacks (rendered before it existed); render the data set again")
-    robot = load_robot(config)
-    links = meta.links[:-1]  # the last part is the end-effector, fitted by its BOP model
+    robot = load_robot(f"{meta.arm}+{meta.end_effector}")
+    # the parts of robot_mask_visib/ (the last is the end-effector, fitted by its BOP model); a scene rendered
+    # before them has no robot mask, which only the outline with masks given needs
+    links = meta.links[:-1] if meta.links else robot.arm_links
     return robot, links, [SilhouetteModel(link_mesh(robot, name)) for name in links]
 
 
-def robot_view(arm: tuple, robot_mask: np.ndarray, joint_positions: np.ndarray) -> RobotView:
+def robot_view(arm: tuple, robot_mask: np.ndarray | None, joint_positions: np.ndarray) -> RobotView:
     """The robot mask and each arm link's pose in the base frame (FK of the joint positions)."""
     robot, links, _ = arm
     T_base_link = robot.T_base_link(joint_positions)

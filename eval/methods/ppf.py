@@ -14,6 +14,7 @@ from feepe.icp import SurfaceModel
 from feepe.ppf import PpfDetector, PpfOptions, scene_cloud
 from kernel.bop import SceneMeta
 from kernel.dataset import Dataset
+from kernel.errors import UserError
 
 
 @register("ppf")
@@ -30,6 +31,11 @@ class Ppf:
 
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
         return [Dataset.of_scene(scene_dir).model_path(meta.obj_id)]
+
+    def given(self, masks: bool, depth: bool) -> None:
+        if not (masks and depth):
+            raise UserError("--method ppf finds the end-effector in each frame's masked depth: it needs --masks given "
+                            "and a depth folder")
 
     def start_scene(self, meta: SceneMeta, scene_dir: Path) -> None:
         if meta.obj_id not in self._detectors:
