@@ -23,10 +23,12 @@ import trimesh
 from eval.bop_results import read_results
 from eval.records import FrameErrors, read_errors
 from kernel.bop import read_frame
+from kernel.camera import project
 from kernel.cli import output_dir, run_command
 from kernel.dataset import Dataset
 from kernel.errors import UserError
 from kernel.files import read_json, write_atomic, write_png
+from kernel.transforms import transform_points
 from syneepose.show import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
 
 EST_COLOUR = (255, 0, 255)
@@ -52,19 +54,10 @@ def load_mesh(path: Path) -> Mesh:
     return Mesh(vertices, np.asarray(mesh.faces), float(np.linalg.norm(vertices, axis=1).max()))
 
 
-def project(points: np.ndarray, K: np.ndarray, T_cam_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel coordinates (pixel centres at integers, as in K) and camera depths of model points."""
-    cam = points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
-    z = cam[:, 2]
-    uvw = cam @ K.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return uvw[:, :2] / uvw[:, 2:], z
-
-
 def silhouette(mesh: Mesh, K: np.ndarray, T_cam_model: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(H, W) bool: the pixels the posed model covers, as the union of its filled triangles."""
-    uv, z = project(mesh.vertices, K, T_cam_model)
-    tri = uv[mesh.faces[(z[mesh.faces] > NEAR_M).all(axis=1)]]
+    cam = transform_points(T_cam_model, mesh.vertices)
+    tri = project(cam, K, min_z=NEAR_M)[mesh.faces[(cam[:, 2][mesh.faces] > NEAR_M).all(axis=1)]]
     lo, hi = tri.min(axis=1), tri.max(axis=1)
     height, width = shape
     inside = (hi[:, 0] >= -1) & (lo[:, 0] <= width) & (hi[:, 1] >= -1) & (lo[:, 1] <= height)
@@ -81,10 +74,9 @@ def contour_points(mask: np.ndarray) -> np.ndarray:
 
 
 def draw_axes(image: np.ndarray, K: np.ndarray, T_cam_model: np.ndarray, length: float) -> np.ndarray:
-    points = np.vstack([np.zeros(3), np.eye(3) * length])
-    uv, z = project(points, K, T_cam_model)
-    if (z > NEAR_M).all():
-        origin, *tips = np.round(uv * (1 << SHIFT)).astype(np.int64)
+    cam = transform_points(T_cam_model, np.vstack([np.zeros(3), np.eye(3) * length]))
+    if (cam[:, 2] > NEAR_M).all():
+        origin, *tips = np.round(project(cam, K, min_z=NEAR_M) * (1 << SHIFT)).astype(np.int64)
         for tip, colour in zip(tips, AXIS_COLOURS):
             cv2.line(image, tuple(origin.tolist()), tuple(tip.tolist()), colour, 1, cv2.LINE_AA, SHIFT)
     return image

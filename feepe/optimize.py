@@ -16,7 +16,10 @@ import cv2
 import numba
 import numpy as np
 
+from kernel.camera import project
 from kernel.transforms import transform_points
+
+MIN_Z_M = 1e-6  # a match's model point nearer than this (or behind the camera) projects as if this far
 
 
 @dataclass
@@ -24,7 +27,7 @@ class Observations:
     """Stacked matches of all key frames, model points already moved into the robot base frame."""
     base_points: np.ndarray  # (N, 3) T_base_ee_i @ X
     uv: np.ndarray  # (N, 2) crop pixels
-    K: np.ndarray  # (N, 4) fx, fy, cx, cy of each match's crop
+    K: np.ndarray  # (N, 3, 3) the intrinsics of each match's crop
     observed_cam: np.ndarray  # (N, 3) query depth back-projected, camera frame (NaN: no depth)
 
 
@@ -35,10 +38,10 @@ def stack(frames: list[tuple[np.ndarray, np.ndarray, list]]) -> Observations:
         for c in cands:
             base.append(transform_points(T_base_ee, c.xyz))
             uv.append(c.uv)
-            K.append(np.tile([Kc[0, 0], Kc[1, 1], Kc[0, 2], Kc[1, 2]], (len(c.uv), 1)))
+            K.append(np.broadcast_to(Kc, (len(c.uv), 3, 3)))
             obs.append(c.observed)
     if not base:
-        return Observations(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 4)), np.zeros((0, 3)))
+        return Observations(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
     return Observations(np.concatenate(base), np.concatenate(uv), np.concatenate(K), np.concatenate(obs))
 
 
@@ -62,16 +65,15 @@ def jacobian_row(J, i, qx, qy, qz, gx, gy, gz):
     J[i, 0, 3], J[i, 0, 4], J[i, 0, 5] = gx, gy, gz
 
 
-def project(P: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Camera points (N, 3) with per-point (fx, fy, cx, cy) (N, 4) -> pixels (N, 2) and d uv / dP (N, 2, 3)."""
-    z = np.maximum(P[:, 2], 1e-6)
-    uv = np.stack([K[:, 0] * P[:, 0] / z + K[:, 2], K[:, 1] * P[:, 1] / z + K[:, 3]], 1)
+def projection_jacobian(P: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """d uv / dP (N, 2, 3) of `kernel.camera.project` at camera points P (N, 3), one K (N, 3, 3) each."""
+    z = np.maximum(P[:, 2], MIN_Z_M)
     dpi = np.zeros((len(P), 2, 3))
-    dpi[:, 0, 0] = K[:, 0] / z
-    dpi[:, 0, 2] = -K[:, 0] * P[:, 0] / z**2
-    dpi[:, 1, 1] = K[:, 1] / z
-    dpi[:, 1, 2] = -K[:, 1] * P[:, 1] / z**2
-    return uv, dpi
+    dpi[:, 0, 0] = K[:, 0, 0] / z
+    dpi[:, 0, 2] = -K[:, 0, 0] * P[:, 0] / z**2
+    dpi[:, 1, 1] = K[:, 1, 1] / z
+    dpi[:, 1, 2] = -K[:, 1, 1] * P[:, 1] / z**2
+    return dpi
 
 
 class Term(Protocol):
@@ -95,14 +97,13 @@ class _Problem:
             return [e for e, _ in extra], [J for _, J in extra] if jacobian else []
         Q = self.obs.base_points @ T[:3, :3].T
         P = Q + T[:3, 3]
-        uv, dpi = project(P, self.obs.K)
-        e2 = uv - self.obs.uv
+        e2 = project(P, self.obs.K, min_z=MIN_Z_M) - self.obs.uv
         blocks = [e2 / self.sigma_px, (P[self.depth] - self.obs.observed_cam[self.depth]) * self.k3]
         blocks += [e for e, _ in extra]
         if not jacobian:
             return blocks, []
         dP = point_jacobian(Q)
-        jacobians = [(dpi @ dP) / self.sigma_px, dP[self.depth] * self.k3]
+        jacobians = [(projection_jacobian(P, self.obs.K) @ dP) / self.sigma_px, dP[self.depth] * self.k3]
         return blocks, jacobians + [J for _, J in extra]
 
 
@@ -196,5 +197,5 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
 
 
 def reprojection_px(T_cam_base: np.ndarray, obs: Observations) -> np.ndarray:
-    uv, _ = project(obs.base_points @ T_cam_base[:3, :3].T + T_cam_base[:3, 3], obs.K)
+    uv = project(obs.base_points @ T_cam_base[:3, :3].T + T_cam_base[:3, 3], obs.K, min_z=MIN_Z_M)
     return np.linalg.norm(uv - obs.uv, axis=1)

@@ -23,6 +23,7 @@ import trimesh
 from feepe import raster
 from feepe.depth import depth_at
 from feepe.optimize import jacobian_row
+from kernel.camera import project
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
 
@@ -237,7 +238,8 @@ def _edge_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, ste
     xb, yb, zb = _to_camera(T, V[j, 0], V[j, 1], V[j, 2])
     if not (za > NEAR_M and zb > NEAR_M):
         return 0
-    ua, va, ub, vb = fx * xa / za + cx, fy * ya / za + cy, fx * xb / zb + cx, fy * yb / zb + cy
+    ua, va = raster.to_pixel(fx, fy, cx, cy, xa, ya, za)
+    ub, vb = raster.to_pixel(fx, fy, cx, cy, xb, yb, zb)
     if not (_near(deep, ua, va) or _near(deep, ub, vb) or _near(deep, 0.5 * (ua + ub), 0.5 * (va + vb))):
         return 0
     length = min(np.sqrt((ub - ua) ** 2 + (vb - va) ** 2), h + w)  # longer edges leave the image
@@ -254,14 +256,14 @@ def _edge_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, ste
         x, y, z = _to_camera(T, px, py, pz)
         if z <= 0.0:
             continue
-        u, v = fx * x / z + cx, fy * y / z + cy
+        u, v = raster.to_pixel(fx, fy, cx, cy, x, y, z)
         if not (BORDER_PX <= u <= w - 1 - BORDER_PX and BORDER_PX <= v <= h - 1 - BORDER_PX):
             continue
         if not _near(inner, u, v):
             continue
         if at >= 0:  # the probe: the image direction away from the silhouette, the normal projected
-            du = fx * (x + tx) / (z + tz) + cx - u
-            dv = fy * (y + ty) / (z + tz) + cy - v
+            u_normal, v_normal = raster.to_pixel(fx, fy, cx, cy, x + tx, y + ty, z + tz)
+            du, dv = u_normal - u, v_normal - v
             d = max(np.sqrt(du * du + dv * dv), 1e-12)
             P_out[at + m, 0], P_out[at + m, 1], P_out[at + m, 2] = px, py, pz
             probe_out[at + m, 0], probe_out[at + m, 1] = u + probe_px * du / d, v + probe_px * dv / d
@@ -334,8 +336,8 @@ def _contour_rows(points, K, T, field, sigma, e, J):
         qy = T[1, 0] * points[i, 0] + T[1, 1] * points[i, 1] + T[1, 2] * points[i, 2]
         qz = T[2, 0] * points[i, 0] + T[2, 1] * points[i, 1] + T[2, 2] * points[i, 2]
         x, y, z = qx + T[0, 3], qy + T[1, 3], max(qz + T[2, 3], 1e-6)
-        u = min(max(fx * x / z + cx, 0.0), w - 1.001)
-        v = min(max(fy * y / z + cy, 0.0), h - 1.001)
+        u, v = raster.to_pixel(fx, fy, cx, cy, x, y, z)
+        u, v = min(max(u, 0.0), w - 1.001), min(max(v, 0.0), h - 1.001)
         u0, v0 = int(u), int(v)
         a, b = u - u0, v - v0
         e[i, 0] = _bilinear(field, u0, v0, a, b, 0) / sigma
@@ -381,7 +383,7 @@ def visible_contour(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskVie
         out = []
         for T_cam_part, P in zip(T_cam_parts, model.contours(T_cam_parts, mv.K, mv.sdt.shape, step_px)):
             Pc = transform_points(T_cam_part, P)
-            out.append(P[~mv.occluded(_project(Pc, mv.K), Pc[:, 2])])  # hidden by what stands in front: no evidence
+            out.append(P[~mv.occluded(project(Pc, mv.K, min_z=1e-9), Pc[:, 2])])  # hidden by what stands in front: no evidence
         return out
 
     return _reused(mv.contours, (model, step_px), model, T_cam_parts, mv.K, extract)
@@ -468,10 +470,10 @@ def iou_bound(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
         if z - r <= raster.NEAR_M:  # the sphere reaches the near plane: no box holds its image
             return 1.0
         # over the cube around the sphere X/Z and Y/Z are extreme at its corners
-        us = [K[0, 0] * a / b + K[0, 2] for a in (x - r, x + r) for b in (z - r, z + r)]
-        vs = [K[1, 1] * a / b + K[1, 2] for a in (y - r, y + r) for b in (z - r, z + r)]
-        u0, u1 = max(int(np.floor(min(us))), 0), min(int(np.ceil(max(us))), w - 1)
-        v0, v1 = max(int(np.floor(min(vs))), 0), min(int(np.ceil(max(vs))), h - 1)
+        corners = np.array([(a, b, c) for a in (x - r, x + r) for b in (y - r, y + r) for c in (z - r, z + r)])
+        uv = project(corners, K, min_z=raster.NEAR_M)
+        u0, u1 = max(int(np.floor(uv[:, 0].min())), 0), min(int(np.ceil(uv[:, 0].max())), w - 1)
+        v0, v1 = max(int(np.floor(uv[:, 1].min())), 0), min(int(np.ceil(uv[:, 1].max())), h - 1)
         boxes[v0:v1 + 1, u0:u1 + 1] = True  # an empty slice when the box misses the image
     return np.count_nonzero(seen & boxes) / total
 
@@ -479,11 +481,6 @@ def iou_bound(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
 def _strided(mv: MaskView, stride: int) -> tuple[np.ndarray, np.ndarray]:
     """The mask on every `stride`-th pixel and the intrinsics of that grid."""
     return mv.mask[::stride, ::stride], np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K
-
-
-def _project(P: np.ndarray, K: np.ndarray) -> np.ndarray:
-    z = np.maximum(P[:, 2], 1e-9)
-    return np.stack([K[0, 0] * P[:, 0] / z + K[0, 2], K[1, 1] * P[:, 1] / z + K[1, 2]], 1)
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:

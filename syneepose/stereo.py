@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 from pydantic import Field, field_validator
 
+from kernel.camera import project
 from kernel.errors import UserError
 from kernel.settings import Section, number_range, validate
 from kernel.transforms import make_T
@@ -178,8 +179,7 @@ def to_rgb_camera(depth_ir: np.ndarray, K_ir: np.ndarray, T_rgb_ir: np.ndarray, 
     zr = pts[:, 2]
     front = zr > 0
     pts, zr = pts[front], zr[front]
-    ur = K_rgb[0, 0] * pts[:, 0] / zr + K_rgb[0, 2]
-    vr = K_rgb[1, 1] * pts[:, 1] / zr + K_rgb[1, 2]
+    ur, vr = project(pts, K_rgb, min_z=0.0).T
     half = 0.5 * (K_rgb[0, 0] / K_ir[0, 0]) * (z[front] / zr)  # half the footprint, RGB pixels
     reach = int(np.ceil(half.max())) if len(half) else 0
     ux, vy = np.floor(ur + 0.5), np.floor(vr + 0.5)  # nearest pixel centre: always covered
