@@ -124,6 +124,12 @@ def _add_normal_equations(e, J, H, g):
                     H[p, q] += wp * J[i, a, q]
 
 
+def robust_sigma(residuals: np.ndarray) -> float:
+    """1.4826 x the median absolute residual: a normal distribution's standard deviation, which outliers
+    barely move; the scale the residuals' Cauchy kernel is measured at (depth's sensor model, each mask)."""
+    return 1.4826 * float(np.median(np.abs(residuals)))
+
+
 def _cost(blocks: list) -> float:
     return float(sum(np.log1p(np.sum(e**2, 1)).sum() for e in blocks))
 

@@ -22,7 +22,7 @@ import trimesh
 
 from feepe import raster
 from feepe.depth import depth_at
-from feepe.optimize import jacobian_row
+from feepe.optimize import jacobian_row, robust_sigma
 from kernel.camera import project
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
@@ -360,7 +360,7 @@ def _bilinear(field, u0, v0, a, b, k):
 def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
                  sigma_px: float, step_px: float = 1.0, measured: bool = False) -> SilhouetteTerm:
     """frames: (T_base_parts, MaskView) each; the contours are those at the current pose. `measured`: each
-    frame's scale is at least its residuals' robust spread at this pose (1.4826 x median), so a mask that a
+    frame's scale is at least its residuals' robust spread at this pose (`robust_sigma`), so a mask that a
     segmenter got a few pixels wrong pulls less, against depth and against the other frames' masks, than
     one it got right (a segmenter's error varies from image to image)."""
     points, view = [], []
@@ -371,7 +371,7 @@ def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tu
     term = SilhouetteTerm(np.concatenate(points), np.concatenate(view), [mv for _, mv in frames], sigma_px)
     if measured and len(term.view):
         e = np.abs(term.residuals(T_cam_base, False)[0][:, 0]) * sigma_px
-        spread = [1.4826 * np.median(e[a:b]) if b > a else 0.0 for a, b in zip(term.bounds[:-1], term.bounds[1:])]
+        spread = [robust_sigma(e[a:b]) if b > a else 0.0 for a, b in zip(term.bounds[:-1], term.bounds[1:])]
         term.sigma_px = np.maximum(sigma_px, spread)
     return term
 
