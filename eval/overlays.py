@@ -26,10 +26,10 @@ from kernel.bop import read_frame
 from kernel.camera import project
 from kernel.cli import output_dir, run_command
 from kernel.dataset import Dataset
+from kernel.drawing import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
 from kernel.errors import UserError
 from kernel.files import read_json, write_atomic, write_png
 from kernel.transforms import transform_points
-from syneepose.show import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
 
 EST_COLOUR = (255, 0, 255)
 AXIS_COLOURS = ((255, 50, 50), (50, 230, 50), (60, 110, 255))  # x, y, z

@@ -7,8 +7,8 @@ import numpy as np
 
 from eval.overlays import EST_COLOUR, contour_points, draw_pose, load_mesh, silhouette, zoom
 from kernel.bop import read_frame, read_scene, split_dir
+from kernel.drawing import GT_COLOUR
 from kernel.transforms import make_T
-from syneepose.show import GT_COLOUR
 
 
 def _frames(root):
