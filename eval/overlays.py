@@ -67,12 +67,6 @@ def silhouette(mesh: Mesh, K: np.ndarray, T_cam_model: np.ndarray, shape: tuple[
     return cv2.resize(fine, (width, height), interpolation=cv2.INTER_AREA) >= 128
 
 
-def contour_points(mask: np.ndarray) -> np.ndarray:
-    """(n, 2) x, y of every boundary pixel of `mask`, holes included."""
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
-    return np.concatenate([c[:, 0] for c in contours]) if contours else np.zeros((0, 2), int)
-
-
 def draw_axes(image: np.ndarray, K: np.ndarray, T_cam_model: np.ndarray, length: float) -> np.ndarray:
     cam = transform_points(T_cam_model, np.vstack([np.zeros(3), np.eye(3) * length]))
     if (cam[:, 2] > NEAR_M).all():

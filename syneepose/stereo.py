@@ -54,10 +54,6 @@ class SensorProfile:
     def T_irleft_irright(self) -> np.ndarray:
         return make_T(t=[self.baseline, 0.0, 0.0])
 
-    def expected_error(self, depth: float, width: int, height: int, disparity_noise: float = 0.1) -> float:
-        """1-sigma depth error of a `disparity_noise` px disparity error: z^2 * dd / (f * b)."""
-        return depth**2 * disparity_noise / (self.ir_K(width, height)[0, 0] * self.baseline)
-
 
 class _Projector(Section):
     offset: float  # metres along +x from the left imager

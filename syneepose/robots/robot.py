@@ -60,10 +60,6 @@ class Robot:
         return out
 
     @property
-    def arm_joints(self) -> tuple[str, ...]:
-        return self.arm.joints
-
-    @property
     def canonical(self) -> dict[str, float]:
         return dict(self.ee.canonical)
 
