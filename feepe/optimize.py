@@ -20,6 +20,15 @@ from kernel.camera import project
 from kernel.transforms import transform_points
 
 MIN_Z_M = 1e-6  # a match's model point nearer than this (or behind the camera) projects as if this far
+# Levenberg's damping of the Gauss-Newton step, H + damping * (diag H + DIAG_FLOOR): it starts at DAMPING_START,
+# is multiplied by DAMPING_FACTOR after a trial step that raised the cost and divided by it (down to DAMPING_MIN)
+# after one that lowered it; past DAMPING_MAX a solve gives up its trials (the step has all but vanished).
+# DIAG_FLOOR keeps H solvable where a direction no residual moves has a zero diagonal. A step smaller than
+# CONVERGED (rad and m, each) ends a solve. Start and factor are Numerical Recipes' Levenberg-Marquardt values
+# (1e-3, 10); all six were set with the solver (2735d7b) and no measurement of them is recorded.
+DAMPING_START, DAMPING_FACTOR, DAMPING_MIN, DAMPING_MAX = 1e-3, 10.0, 1e-7, 1e8
+DIAG_FLOOR = 1e-12
+CONVERGED = 1e-7
 
 
 @dataclass
@@ -152,12 +161,14 @@ class OptimizeOptions:
     lam: float = 1.0
     sigma_px: float = 2.0  # crop pixels
     sigma_m: float = 0.005
-    max_iterations: int = 30
+    max_iterations: int = 30  # accepted steps at most (set with the solver, 2735d7b; no measurement recorded)
     # stop once a Gauss-Newton step predicts less than this fraction of the cost (0: never, as the paper's
-    # variants run); else a converged solve keeps raising the damping through ten trials that all fail
+    # variants run); else a converged solve keeps raising the damping through ten trials that all fail.
+    # The refinement's value: estimator.MIN_DECREASE
     min_decrease: float = 0.0
     # stop once a damped step that failed moves the pose less than this (rad and m; 0: never, as the paper's
-    # variants run): more damping only shrinks it, and a converged solve spent most of its trials so
+    # variants run): more damping only shrinks it, and a converged solve spent most of its trials so.
+    # The refinement's value: estimator.MIN_STEP
     min_step: float = 0.0
 
 
@@ -174,7 +185,7 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
         return T_init, np.zeros(0)
     w3d = float(np.sqrt(opts.lam)) if opts.lam > 0 else 0.0
     problem = _Problem(obs, opts.sigma_px, opts.sigma_m, w3d, terms)
-    T, damping = T_init.copy(), 1e-3
+    T, damping = T_init.copy(), DAMPING_START
     blocks, jacobians = problem.errors(T, jacobian=True)
     cost = _cost(blocks)
     for _ in range(opts.max_iterations):
@@ -183,21 +194,21 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
             _add_normal_equations(np.ascontiguousarray(e, dtype=float), np.ascontiguousarray(J, dtype=float), H, g)
         H = np.triu(H) + np.triu(H, 1).T
         if opts.min_decrease > 0:
-            x = np.linalg.solve(H + 1e-12 * np.eye(6), -g)
+            x = np.linalg.solve(H + DIAG_FLOOR * np.eye(6), -g)
             if -(g @ x + 0.5 * x @ H @ x) < opts.min_decrease * cost:
                 break
         while True:
-            x = np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), -g)
+            x = np.linalg.solve(H + damping * np.diag(np.diag(H) + DIAG_FLOOR), -g)
             T_new = _step(T, x)
             cost_new = _cost(problem.errors(T_new)[0])
-            if cost_new <= cost or damping > 1e8 or _size(x) < opts.min_step:
+            if cost_new <= cost or damping > DAMPING_MAX or _size(x) < opts.min_step:
                 break
-            damping *= 10.0
+            damping *= DAMPING_FACTOR
         if cost_new > cost:
             break
-        T, cost, damping = T_new, cost_new, max(damping / 10.0, 1e-7)
+        T, cost, damping = T_new, cost_new, max(damping / DAMPING_FACTOR, DAMPING_MIN)
         blocks, jacobians = problem.errors(T, jacobian=True)
-        if _size(x) < 1e-7:
+        if _size(x) < CONVERGED:
             break
     return T, reprojection_px(T, obs)
 
