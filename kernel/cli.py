@@ -55,7 +55,7 @@ def refusal(exc: OSError) -> str:
     if exc.errno in _REFUSALS:
         what, mend = _REFUSALS[exc.errno]
         return f"{where}{what}; {mend}, then run again ({_KEPT})"
-    name = errno.errorcode.get(exc.errno, "no errno") if exc.errno is not None else "no errno"
+    name = errno.errorcode.get(exc.errno, "no errno")  # errno None (an OSError raised with words alone) too
     return f"{where}{exc.strerror or exc} ({name}); {_KEPT}; {DEBUG_ENV}=1 shows where it happened"
 
 
