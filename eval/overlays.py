@@ -3,8 +3,7 @@
 Per frame the model's silhouette at the estimated pose (magenta tint and outline, with its x/y/z axes in
 red/green/blue) over the RGB, the ground-truth silhouette outlined in yellow, and beside it the same drawn
 zoomed on the ground truth; a GIF per segment shows a tracking failure in motion. No renderer: the data
-set's BOP mesh (mm -> m) is projected with K and its triangles filled one by one at 1/16 px (a silhouette
-needs no z-buffer).
+set's BOP mesh (mm -> m) is rasterised at pixel centres, as the data set's masks are, by FEEPE's rasteriser.
 """
 
 from __future__ import annotations
@@ -22,24 +21,25 @@ import trimesh
 
 from eval.bop_results import read_results
 from eval.records import FrameErrors, read_errors
+from feepe import raster
 from kernel.bop import read_frame
+from kernel.camera import project
 from kernel.cli import output_dir, run_command
 from kernel.dataset import Dataset
+from kernel.drawing import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
 from kernel.errors import UserError
 from kernel.files import read_json, write_atomic, write_png
-from syneepose.show import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
+from kernel.transforms import transform_points
 
 EST_COLOUR = (255, 0, 255)
 AXIS_COLOURS = ((255, 50, 50), (50, 230, 50), (60, 110, 255))  # x, y, z
-SHIFT = 4  # OpenCV fixed-point bits: vertices at 1/16 px
-SUPERSAMPLE = 4  # filled at 4x and kept where half a pixel is covered: OpenCV fills every touched pixel
-NEAR_M = 0.01  # triangles with a vertex nearer to the camera plane are left out
+SHIFT = 4  # OpenCV fixed-point bits: the axes drawn at 1/16 px
 
 
 @dataclass
 class Mesh:
     vertices: np.ndarray  # (n, 3) metres, model frame
-    faces: np.ndarray  # (m, 3) vertex indices
+    faces: np.ndarray  # (m, 3) int64 vertex indices
     radius: float  # metres, the farthest vertex from the model origin
 
 
@@ -49,42 +49,19 @@ def load_mesh(path: Path) -> Mesh:
         raise UserError(f"{path}: missing; the data set's models/ folder must hold the BOP models")
     mesh = trimesh.load(path, process=False, force="mesh")
     vertices = np.asarray(mesh.vertices, dtype=float) / 1000.0
-    return Mesh(vertices, np.asarray(mesh.faces), float(np.linalg.norm(vertices, axis=1).max()))
-
-
-def project(points: np.ndarray, K: np.ndarray, T_cam_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel coordinates (pixel centres at integers, as in K) and camera depths of model points."""
-    cam = points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
-    z = cam[:, 2]
-    uvw = cam @ K.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return uvw[:, :2] / uvw[:, 2:], z
+    return Mesh(vertices, np.ascontiguousarray(mesh.faces, dtype=np.int64),
+                float(np.linalg.norm(vertices, axis=1).max()))
 
 
 def silhouette(mesh: Mesh, K: np.ndarray, T_cam_model: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) bool: the pixels the posed model covers, as the union of its filled triangles."""
-    uv, z = project(mesh.vertices, K, T_cam_model)
-    tri = uv[mesh.faces[(z[mesh.faces] > NEAR_M).all(axis=1)]]
-    lo, hi = tri.min(axis=1), tri.max(axis=1)
-    height, width = shape
-    inside = (hi[:, 0] >= -1) & (lo[:, 0] <= width) & (hi[:, 1] >= -1) & (lo[:, 1] <= height)
-    fine = np.zeros((height * SUPERSAMPLE, width * SUPERSAMPLE), np.uint8)
-    for triangle in np.round(((tri[inside] + 0.5) * SUPERSAMPLE - 0.5) * (1 << SHIFT)).astype(np.int32):
-        cv2.fillConvexPoly(fine, triangle, 255, cv2.LINE_8, SHIFT)
-    return cv2.resize(fine, (width, height), interpolation=cv2.INTER_AREA) >= 128
-
-
-def contour_points(mask: np.ndarray) -> np.ndarray:
-    """(n, 2) x, y of every boundary pixel of `mask`, holes included."""
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
-    return np.concatenate([c[:, 0] for c in contours]) if contours else np.zeros((0, 2), int)
+    """(H, W) bool: the pixel centres the posed model covers (what lies behind the near plane cut off)."""
+    return raster.mask(raster.triangles(mesh.vertices, mesh.faces, T_cam_model, K)[0], shape)
 
 
 def draw_axes(image: np.ndarray, K: np.ndarray, T_cam_model: np.ndarray, length: float) -> np.ndarray:
-    points = np.vstack([np.zeros(3), np.eye(3) * length])
-    uv, z = project(points, K, T_cam_model)
-    if (z > NEAR_M).all():
-        origin, *tips = np.round(uv * (1 << SHIFT)).astype(np.int64)
+    cam = transform_points(T_cam_model, np.vstack([np.zeros(3), np.eye(3) * length]))
+    if (cam[:, 2] > raster.NEAR_M).all():
+        origin, *tips = np.round(project(cam, K, min_z=raster.NEAR_M) * (1 << SHIFT)).astype(np.int64)
         for tip, colour in zip(tips, AXIS_COLOURS):
             cv2.line(image, tuple(origin.tolist()), tuple(tip.tolist()), colour, 1, cv2.LINE_AA, SHIFT)
     return image

@@ -25,10 +25,6 @@ class Crop:
     def size(self) -> int:
         return self.mask.shape[0]
 
-    def to_original(self, uv: np.ndarray) -> np.ndarray:
-        A = self.A
-        return (uv - A[:2, 2]) / A[0, 0]
-
 
 def mask_box(mask: np.ndarray) -> tuple[float, float, float] | None:
     """Centre (x, y) and side of the tight square around the mask, or None for an empty mask."""

@@ -45,8 +45,19 @@ BAND_PER_PX = 3.0  # the next frame's band: this many times how far (px) the las
 MAX_HYPOTHESES = 5  # no mask given: the registrations' hypotheses kept and judged as frames arrive
 ACCEPT_AGREE = 0.5  # no mask given: a first calibration needs this share of the robot's depth pixels to agree
 ACCEPT_SEEN_THROUGH = 0.15  # and no more than this share seen through
-MIN_DECREASE = 1e-6  # the refinement's solves stop once a step promises less than this fraction of the cost
-MIN_STEP = 1e-6  # or once a step that failed moves the pose less than this (rad and m: 1 um at the model)
+# The refinement's solves (OptimizeOptions) stop once a step promises less than MIN_DECREASE of the cost
+# (b882845; 1e-5 and 1e-4 took 28.4 and 26.8 against 29.7 ms/frame and moved poses: docs/results.md, sixth
+# step), or once a step that failed moves the pose less than MIN_STEP (rad and m: 1 um at the model; 6064148:
+# 395 of 1701 solves had raised the damping from 1e-7 past 1e8 with their steps below 1 um after 4-6 trials,
+# docs/results.md, tenth step). Each solve takes at most SOLVE_ITERATIONS steps; a stage's rounds of contour
+# extraction and solve end once a solve moves the calibration less than ROUND_MOVED_M, and depth alignment's
+# rounds once one moves it less than ICP_MOVED_M (set with the refinement, fcb078c, and with depth alignment,
+# 7d2aed9; no measurement of these three is recorded).
+MIN_DECREASE = 1e-6
+MIN_STEP = 1e-6
+SOLVE_ITERATIONS = 5
+ROUND_MOVED_M = 1e-4
+ICP_MOVED_M = 1e-5
 # The optimisation and the refinement multiply many small matrices (normal equations of N x 6 Jacobians,
 # N x 3 points by 3 x 3 rotations). OpenBLAS's threads cost more than they save there: a 10000 x 6 normal
 # matrix took 0.15 ms on one thread and 1.4-23 ms on two while the cores were busy. Those stages run on one.
@@ -402,7 +413,7 @@ class Estimator:
             T_new, _ = optimize(T, obs, opts.optimize, [PlaneTerm(planes, opts.icp_sigma_m)])
             moved = np.linalg.norm(T_new[:3, 3] - T[:3, 3])
             T = T_new
-            if moved < 1e-5:
+            if moved < ICP_MOVED_M:
                 break
         return T
 
@@ -481,7 +492,8 @@ class Estimator:
 
     def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:
         no_matches = stack([])
-        opts, inner = self.opts, OptimizeOptions(max_iterations=5, min_decrease=MIN_DECREASE, min_step=MIN_STEP)
+        opts = self.opts
+        inner = OptimizeOptions(max_iterations=SOLVE_ITERATIONS, min_decrease=MIN_DECREASE, min_step=MIN_STEP)
         for k, sigma in enumerate(sigmas):
             # each frame's mask weighs by how well it fits (beside depth at every stage, else at the finest):
             # a segmenter's few-pixel errors then yield the range to depth and to the better masks, exact masks
@@ -498,7 +510,7 @@ class Estimator:
                 T_new, _ = optimize(T, no_matches, inner, terms=terms)
                 moved = np.linalg.norm(T_new[:3, 3] - T[:3, 3])
                 T = T_new
-                if moved < 1e-4:
+                if moved < ROUND_MOVED_M:
                     break
         return T
 

@@ -19,7 +19,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from feepe.depth import backproject
-from feepe.optimize import jacobian_row
+from feepe.optimize import jacobian_row, robust_sigma
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
 
@@ -154,6 +154,6 @@ def depth_agreement(distances: np.ndarray, scale: float) -> float:
 
 
 def robust_scale(residuals: np.ndarray, min_scale: float = 0.25) -> float:
-    """1.4826 x the median absolute residual (a normal's standard deviation, robustly), at least `min_scale`:
-    how far the sensor model's sigma is off for these data (exact depth: below 1)."""
-    return max(1.4826 * float(np.median(np.abs(residuals))), min_scale) if len(residuals) else 1.0
+    """The residuals' robust_sigma, at least `min_scale`: how far the sensor model's sigma is off for these data
+    (exact depth: below 1)."""
+    return max(robust_sigma(residuals), min_scale) if len(residuals) else 1.0

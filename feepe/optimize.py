@@ -16,7 +16,19 @@ import cv2
 import numba
 import numpy as np
 
+from kernel.camera import project
 from kernel.transforms import transform_points
+
+MIN_Z_M = 1e-6  # a match's model point nearer than this (or behind the camera) projects as if this far
+# Levenberg's damping of the Gauss-Newton step, H + damping * (diag H + DIAG_FLOOR): it starts at DAMPING_START,
+# is multiplied by DAMPING_FACTOR after a trial step that raised the cost and divided by it (down to DAMPING_MIN)
+# after one that lowered it; past DAMPING_MAX a solve gives up its trials (the step has all but vanished).
+# DIAG_FLOOR keeps H solvable where a direction no residual moves has a zero diagonal. A step smaller than
+# CONVERGED (rad and m, each) ends a solve. Start and factor are Numerical Recipes' Levenberg-Marquardt values
+# (1e-3, 10); all six were set with the solver (2735d7b) and no measurement of them is recorded.
+DAMPING_START, DAMPING_FACTOR, DAMPING_MIN, DAMPING_MAX = 1e-3, 10.0, 1e-7, 1e8
+DIAG_FLOOR = 1e-12
+CONVERGED = 1e-7
 
 
 @dataclass
@@ -24,7 +36,7 @@ class Observations:
     """Stacked matches of all key frames, model points already moved into the robot base frame."""
     base_points: np.ndarray  # (N, 3) T_base_ee_i @ X
     uv: np.ndarray  # (N, 2) crop pixels
-    K: np.ndarray  # (N, 4) fx, fy, cx, cy of each match's crop
+    K: np.ndarray  # (N, 3, 3) the intrinsics of each match's crop
     observed_cam: np.ndarray  # (N, 3) query depth back-projected, camera frame (NaN: no depth)
 
 
@@ -35,10 +47,10 @@ def stack(frames: list[tuple[np.ndarray, np.ndarray, list]]) -> Observations:
         for c in cands:
             base.append(transform_points(T_base_ee, c.xyz))
             uv.append(c.uv)
-            K.append(np.tile([Kc[0, 0], Kc[1, 1], Kc[0, 2], Kc[1, 2]], (len(c.uv), 1)))
+            K.append(np.broadcast_to(Kc, (len(c.uv), 3, 3)))
             obs.append(c.observed)
     if not base:
-        return Observations(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 4)), np.zeros((0, 3)))
+        return Observations(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
     return Observations(np.concatenate(base), np.concatenate(uv), np.concatenate(K), np.concatenate(obs))
 
 
@@ -62,16 +74,15 @@ def jacobian_row(J, i, qx, qy, qz, gx, gy, gz):
     J[i, 0, 3], J[i, 0, 4], J[i, 0, 5] = gx, gy, gz
 
 
-def project(P: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Camera points (N, 3) with per-point (fx, fy, cx, cy) (N, 4) -> pixels (N, 2) and d uv / dP (N, 2, 3)."""
-    z = np.maximum(P[:, 2], 1e-6)
-    uv = np.stack([K[:, 0] * P[:, 0] / z + K[:, 2], K[:, 1] * P[:, 1] / z + K[:, 3]], 1)
+def projection_jacobian(P: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """d uv / dP (N, 2, 3) of `kernel.camera.project` at camera points P (N, 3), one K (N, 3, 3) each."""
+    z = np.maximum(P[:, 2], MIN_Z_M)
     dpi = np.zeros((len(P), 2, 3))
-    dpi[:, 0, 0] = K[:, 0] / z
-    dpi[:, 0, 2] = -K[:, 0] * P[:, 0] / z**2
-    dpi[:, 1, 1] = K[:, 1] / z
-    dpi[:, 1, 2] = -K[:, 1] * P[:, 1] / z**2
-    return uv, dpi
+    dpi[:, 0, 0] = K[:, 0, 0] / z
+    dpi[:, 0, 2] = -K[:, 0, 0] * P[:, 0] / z**2
+    dpi[:, 1, 1] = K[:, 1, 1] / z
+    dpi[:, 1, 2] = -K[:, 1, 1] * P[:, 1] / z**2
+    return dpi
 
 
 class Term(Protocol):
@@ -95,14 +106,13 @@ class _Problem:
             return [e for e, _ in extra], [J for _, J in extra] if jacobian else []
         Q = self.obs.base_points @ T[:3, :3].T
         P = Q + T[:3, 3]
-        uv, dpi = project(P, self.obs.K)
-        e2 = uv - self.obs.uv
+        e2 = project(P, self.obs.K, min_z=MIN_Z_M) - self.obs.uv
         blocks = [e2 / self.sigma_px, (P[self.depth] - self.obs.observed_cam[self.depth]) * self.k3]
         blocks += [e for e, _ in extra]
         if not jacobian:
             return blocks, []
         dP = point_jacobian(Q)
-        jacobians = [(dpi @ dP) / self.sigma_px, dP[self.depth] * self.k3]
+        jacobians = [(projection_jacobian(P, self.obs.K) @ dP) / self.sigma_px, dP[self.depth] * self.k3]
         return blocks, jacobians + [J for _, J in extra]
 
 
@@ -121,6 +131,12 @@ def _add_normal_equations(e, J, H, g):
                 g[p] += wp * e[i, a]
                 for q in range(p, 6):
                     H[p, q] += wp * J[i, a, q]
+
+
+def robust_sigma(residuals: np.ndarray) -> float:
+    """1.4826 x the median absolute residual: a normal distribution's standard deviation, which outliers
+    barely move; the scale the residuals' Cauchy kernel is measured at (depth's sensor model, each mask)."""
+    return 1.4826 * float(np.median(np.abs(residuals)))
 
 
 def _cost(blocks: list) -> float:
@@ -145,12 +161,14 @@ class OptimizeOptions:
     lam: float = 1.0
     sigma_px: float = 2.0  # crop pixels
     sigma_m: float = 0.005
-    max_iterations: int = 30
+    max_iterations: int = 30  # accepted steps at most (set with the solver, 2735d7b; no measurement recorded)
     # stop once a Gauss-Newton step predicts less than this fraction of the cost (0: never, as the paper's
-    # variants run); else a converged solve keeps raising the damping through ten trials that all fail
+    # variants run); else a converged solve keeps raising the damping through ten trials that all fail.
+    # The refinement's value: estimator.MIN_DECREASE
     min_decrease: float = 0.0
     # stop once a damped step that failed moves the pose less than this (rad and m; 0: never, as the paper's
-    # variants run): more damping only shrinks it, and a converged solve spent most of its trials so
+    # variants run): more damping only shrinks it, and a converged solve spent most of its trials so.
+    # The refinement's value: estimator.MIN_STEP
     min_step: float = 0.0
 
 
@@ -167,7 +185,7 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
         return T_init, np.zeros(0)
     w3d = float(np.sqrt(opts.lam)) if opts.lam > 0 else 0.0
     problem = _Problem(obs, opts.sigma_px, opts.sigma_m, w3d, terms)
-    T, damping = T_init.copy(), 1e-3
+    T, damping = T_init.copy(), DAMPING_START
     blocks, jacobians = problem.errors(T, jacobian=True)
     cost = _cost(blocks)
     for _ in range(opts.max_iterations):
@@ -176,25 +194,25 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
             _add_normal_equations(np.ascontiguousarray(e, dtype=float), np.ascontiguousarray(J, dtype=float), H, g)
         H = np.triu(H) + np.triu(H, 1).T
         if opts.min_decrease > 0:
-            x = np.linalg.solve(H + 1e-12 * np.eye(6), -g)
+            x = np.linalg.solve(H + DIAG_FLOOR * np.eye(6), -g)
             if -(g @ x + 0.5 * x @ H @ x) < opts.min_decrease * cost:
                 break
         while True:
-            x = np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), -g)
+            x = np.linalg.solve(H + damping * np.diag(np.diag(H) + DIAG_FLOOR), -g)
             T_new = _step(T, x)
             cost_new = _cost(problem.errors(T_new)[0])
-            if cost_new <= cost or damping > 1e8 or _size(x) < opts.min_step:
+            if cost_new <= cost or damping > DAMPING_MAX or _size(x) < opts.min_step:
                 break
-            damping *= 10.0
+            damping *= DAMPING_FACTOR
         if cost_new > cost:
             break
-        T, cost, damping = T_new, cost_new, max(damping / 10.0, 1e-7)
+        T, cost, damping = T_new, cost_new, max(damping / DAMPING_FACTOR, DAMPING_MIN)
         blocks, jacobians = problem.errors(T, jacobian=True)
-        if _size(x) < 1e-7:
+        if _size(x) < CONVERGED:
             break
     return T, reprojection_px(T, obs)
 
 
 def reprojection_px(T_cam_base: np.ndarray, obs: Observations) -> np.ndarray:
-    uv, _ = project(obs.base_points @ T_cam_base[:3, :3].T + T_cam_base[:3, 3], obs.K)
+    uv = project(obs.base_points @ T_cam_base[:3, :3].T + T_cam_base[:3, 3], obs.K, min_z=MIN_Z_M)
     return np.linalg.norm(uv - obs.uv, axis=1)

@@ -37,12 +37,17 @@ def _clip(P, face, poly):
     return n
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def to_pixel(fx, fy, cx, cy, x, y, z):
+    """Camera point (x, y, z) -> pixel (u, v): `kernel.camera.project` in scalars, for compiled loops."""
+    return fx * x / z + cx, fy * y / z + cy
+
+
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _pixels(P, fx, fy, cx, cy):
     uv = np.empty((P.shape[0], 2))
     for i in numba.prange(P.shape[0]):
-        z = max(P[i, 2], NEAR_M)
-        uv[i, 0], uv[i, 1] = fx * P[i, 0] / z + cx, fy * P[i, 1] / z + cy
+        uv[i, 0], uv[i, 1] = to_pixel(fx, fy, cx, cy, P[i, 0], P[i, 1], max(P[i, 2], NEAR_M))
     return uv
 
 
@@ -71,8 +76,7 @@ def _project(P, faces, fx, fy, cx, cy):
         n = _clip(P, faces[f], poly)
         for k in range(1, n - 1):
             for j, i in enumerate((0, k, k + 1)):
-                tri[m, j, 0] = fx * poly[i, 0] / poly[i, 2] + cx
-                tri[m, j, 1] = fy * poly[i, 1] / poly[i, 2] + cy
+                tri[m, j, 0], tri[m, j, 1] = to_pixel(fx, fy, cx, cy, poly[i, 0], poly[i, 1], poly[i, 2])
                 tz[m, j] = poly[i, 2]
             m += 1
     return tri[:m], tz[:m]

@@ -22,7 +22,8 @@ import trimesh
 
 from feepe import raster
 from feepe.depth import depth_at
-from feepe.optimize import jacobian_row
+from feepe.optimize import jacobian_row, robust_sigma
+from kernel.camera import project
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
 
@@ -84,8 +85,8 @@ class Outline:
     """The mask whose outline counts (one part's, or the union of the robot's parts) as the contour
     extraction asks it: which pixels lie deep inside its rendered mask (what is there is passed over),
     and its image triangles, which the rest is tested against exactly."""
-    deep: np.ndarray  # (H, W) bool: no pixel off the mask within INSIDE_PX
-    inner: np.ndarray  # (H, W) bool: no pixel off the mask among the 8 neighbours
+    deep_interior: np.ndarray  # (H, W) bool: no pixel off the mask within INSIDE_PX
+    interior: np.ndarray  # (H, W) bool: no pixel off the mask among the 8 neighbours
     triangles: np.ndarray  # (T, 3, 2) image triangles of every part
 
     @classmethod
@@ -120,11 +121,13 @@ class SilhouetteModel:
         away = mid - mesh.triangles_center[b_face]
         away -= along * (np.sum(away * along, 1) / np.maximum(np.sum(along * along, 1), 1e-18))[:, None]
         self.edges = np.concatenate([mesh.face_adjacency_edges, b_edges]).astype(int)
-        self.n1 = np.concatenate([normals[pairs[:, 0]], normals[b_face]])
-        self.n2 = np.concatenate([normals[pairs[:, 1]], -normals[b_face]])
+        # each edge's two faces' normals (an open edge: its face's and the reverse) and planes' offsets n . mid:
+        # a face turns away from an eye with n . eye < offset, and a rim edge has one face each way
+        self.normal_a = np.concatenate([normals[pairs[:, 0]], normals[b_face]])
+        self.normal_b = np.concatenate([normals[pairs[:, 1]], -normals[b_face]])
         self.outward = np.concatenate([normals[pairs[:, 0]] + normals[pairs[:, 1]], away])
         mid = mesh.vertices[self.edges].mean(1)
-        self.o1, self.o2 = np.sum(self.n1 * mid, 1), np.sum(self.n2 * mid, 1)  # n . mid, for the rim test
+        self.offset_a, self.offset_b = np.sum(self.normal_a * mid, 1), np.sum(self.normal_b * mid, 1)
         self.centre = mesh.bounds.mean(0)  # the bounding sphere's (motion and IoU bounds, position starts)
         self.radius = float(np.linalg.norm(mesh.vertices - self.centre, axis=1).max())
 
@@ -150,9 +153,9 @@ class SilhouetteModel:
         of image length, and the image points `probe_px` outside them: a point is on the outline where its
         probe misses every triangle of the outline's mask. Points deep in the mask, within BORDER_PX of the
         image border or on an edge nearer the camera than NEAR_M are left out."""
-        return _rim_samples(self.vertices, self.edges, self.n1, self.n2, self.o1, self.o2, self.outward,
-                            np.ascontiguousarray(T_cam_ee, dtype=float), inv_T(T_cam_ee)[:3, 3].copy(),
-                            np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], float), outline.deep, outline.inner,
+        return _rim_samples(self.vertices, self.edges, self.normal_a, self.normal_b, self.offset_a, self.offset_b,
+                            self.outward, np.ascontiguousarray(T_cam_ee, dtype=float), inv_T(T_cam_ee)[:3, 3].copy(),
+                            np.ascontiguousarray(K, dtype=float), outline.deep_interior, outline.interior,
                             float(step_px), float(probe_px))
 
     def render(self, T_cam_ee: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -208,41 +211,44 @@ class PartsSilhouette:
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _rim_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step_px, probe_px):
+def _rim_samples(V, edges, normal_a, normal_b, offset_a, offset_b, outward, T, eye, K, deep_interior, interior,
+                 step_px, probe_px):
     """SilhouetteModel.candidates over the edges on both cores: each edge's samples counted, then written
     at their offsets, so the output keeps the edges' order."""
     counts = np.zeros(edges.shape[0] + 1, np.int64)
     P_out, probe_out = np.empty((0, 3)), np.empty((0, 2))
     for e in numba.prange(edges.shape[0]):
-        counts[e + 1] = _edge_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step_px,
-                                      probe_px, e, P_out, probe_out, -1)
+        counts[e + 1] = _edge_samples(V, edges, normal_a, normal_b, offset_a, offset_b, outward, T, eye, K,
+                                      deep_interior, interior, step_px, probe_px, e, P_out, probe_out, -1)
     starts = np.cumsum(counts)
     P_out, probe_out = np.empty((starts[-1], 3)), np.empty((starts[-1], 2))
     for e in numba.prange(edges.shape[0]):
         if counts[e + 1]:
-            _edge_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step_px, probe_px, e,
-                          P_out, probe_out, starts[e])
+            _edge_samples(V, edges, normal_a, normal_b, offset_a, offset_b, outward, T, eye, K, deep_interior,
+                          interior, step_px, probe_px, e, P_out, probe_out, starts[e])
     return P_out, probe_out
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _edge_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, step_px, probe_px, e, P_out,
-                  probe_out, at):
+def _edge_samples(V, edges, normal_a, normal_b, offset_a, offset_b, outward, T, eye, K, deep_interior, interior,
+                  step_px, probe_px, e, P_out, probe_out, at):
     """Edge e's samples, in scalars (a small array per edge would cost more than the edge's arithmetic):
     their number, and with `at` >= 0 the samples and probes written from row `at`."""
-    h, w = deep.shape
-    fx, fy, cx, cy = k[0], k[1], k[2], k[3]
-    s1 = o1[e] > n1[e, 0] * eye[0] + n1[e, 1] * eye[1] + n1[e, 2] * eye[2]
-    s2 = o2[e] > n2[e, 0] * eye[0] + n2[e, 1] * eye[1] + n2[e, 2] * eye[2]
-    if s1 == s2:
+    h, w = deep_interior.shape
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    away_a = offset_a[e] > normal_a[e, 0] * eye[0] + normal_a[e, 1] * eye[1] + normal_a[e, 2] * eye[2]
+    away_b = offset_b[e] > normal_b[e, 0] * eye[0] + normal_b[e, 1] * eye[1] + normal_b[e, 2] * eye[2]
+    if away_a == away_b:
         return 0
     i, j = edges[e, 0], edges[e, 1]
     xa, ya, za = _to_camera(T, V[i, 0], V[i, 1], V[i, 2])
     xb, yb, zb = _to_camera(T, V[j, 0], V[j, 1], V[j, 2])
     if not (za > NEAR_M and zb > NEAR_M):
         return 0
-    ua, va, ub, vb = fx * xa / za + cx, fy * ya / za + cy, fx * xb / zb + cx, fy * yb / zb + cy
-    if not (_near(deep, ua, va) or _near(deep, ub, vb) or _near(deep, 0.5 * (ua + ub), 0.5 * (va + vb))):
+    ua, va = raster.to_pixel(fx, fy, cx, cy, xa, ya, za)
+    ub, vb = raster.to_pixel(fx, fy, cx, cy, xb, yb, zb)
+    if not (_off(deep_interior, ua, va) or _off(deep_interior, ub, vb)
+            or _off(deep_interior, 0.5 * (ua + ub), 0.5 * (va + vb))):
         return 0
     length = min(np.sqrt((ub - ua) ** 2 + (vb - va) ** 2), h + w)  # longer edges leave the image
     n = max(1, int(np.ceil(length / step_px)))
@@ -258,14 +264,14 @@ def _edge_samples(V, edges, n1, n2, o1, o2, outward, T, eye, k, deep, inner, ste
         x, y, z = _to_camera(T, px, py, pz)
         if z <= 0.0:
             continue
-        u, v = fx * x / z + cx, fy * y / z + cy
+        u, v = raster.to_pixel(fx, fy, cx, cy, x, y, z)
         if not (BORDER_PX <= u <= w - 1 - BORDER_PX and BORDER_PX <= v <= h - 1 - BORDER_PX):
             continue
-        if not _near(inner, u, v):
+        if not _off(interior, u, v):
             continue
         if at >= 0:  # the probe: the image direction away from the silhouette, the normal projected
-            du = fx * (x + tx) / (z + tz) + cx - u
-            dv = fy * (y + ty) / (z + tz) + cy - v
+            u_normal, v_normal = raster.to_pixel(fx, fy, cx, cy, x + tx, y + ty, z + tz)
+            du, dv = u_normal - u, v_normal - v
             d = max(np.sqrt(du * du + dv * dv), 1e-12)
             P_out[at + m, 0], P_out[at + m, 1], P_out[at + m, 2] = px, py, pz
             probe_out[at + m, 0], probe_out[at + m, 1] = u + probe_px * du / d, v + probe_px * dv / d
@@ -282,10 +288,10 @@ def _to_camera(T, x, y, z, w=1.0):
 
 
 @numba.njit(cache=True, nogil=True)
-def _near(deep, u, v):
-    """Whether the pixel nearest to (u, v) is not deep inside the mask (off the image: clamped)."""
-    h, w = deep.shape
-    return not deep[min(max(int(np.rint(v)), 0), h - 1), min(max(int(np.rint(u)), 0), w - 1)]
+def _off(region, u, v):
+    """Whether the pixel nearest to (u, v) lies off `region` (off the image: clamped)."""
+    h, w = region.shape
+    return not region[min(max(int(np.rint(v)), 0), h - 1), min(max(int(np.rint(u)), 0), w - 1)]
 
 
 def placed(T_cam_base: np.ndarray, T_base_parts: np.ndarray) -> np.ndarray:
@@ -338,8 +344,8 @@ def _contour_rows(points, K, T, field, sigma, e, J):
         qy = T[1, 0] * points[i, 0] + T[1, 1] * points[i, 1] + T[1, 2] * points[i, 2]
         qz = T[2, 0] * points[i, 0] + T[2, 1] * points[i, 1] + T[2, 2] * points[i, 2]
         x, y, z = qx + T[0, 3], qy + T[1, 3], max(qz + T[2, 3], 1e-6)
-        u = min(max(fx * x / z + cx, 0.0), w - 1.001)
-        v = min(max(fy * y / z + cy, 0.0), h - 1.001)
+        u, v = raster.to_pixel(fx, fy, cx, cy, x, y, z)
+        u, v = min(max(u, 0.0), w - 1.001), min(max(v, 0.0), h - 1.001)
         u0, v0 = int(u), int(v)
         a, b = u - u0, v - v0
         e[i, 0] = _bilinear(field, u0, v0, a, b, 0) / sigma
@@ -352,17 +358,17 @@ def _contour_rows(points, K, T, field, sigma, e, J):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _bilinear(field, u0, v0, a, b, k):
-    """Channel k of the field between the four pixels from (u0, v0), at fractions (a, b). A scalar, not a
+def _bilinear(field, u0, v0, a, b, channel):
+    """A channel of the field between the four pixels from (u0, v0), at fractions (a, b). A scalar, not a
     small array per point: allocating one cost more than the sampling."""
-    return ((1 - a) * (1 - b) * field[v0, u0, k] + a * (1 - b) * field[v0, u0 + 1, k]
-            + (1 - a) * b * field[v0 + 1, u0, k] + a * b * field[v0 + 1, u0 + 1, k])
+    return ((1 - a) * (1 - b) * field[v0, u0, channel] + a * (1 - b) * field[v0, u0 + 1, channel]
+            + (1 - a) * b * field[v0 + 1, u0, channel] + a * b * field[v0 + 1, u0 + 1, channel])
 
 
 def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, MaskView]],
                  sigma_px: float, step_px: float = 1.0, measured: bool = False) -> SilhouetteTerm:
     """frames: (T_base_parts, MaskView) each; the contours are those at the current pose. `measured`: each
-    frame's scale is at least its residuals' robust spread at this pose (1.4826 x median), so a mask that a
+    frame's scale is at least its residuals' robust spread at this pose (`robust_sigma`), so a mask that a
     segmenter got a few pixels wrong pulls less, against depth and against the other frames' masks, than
     one it got right (a segmenter's error varies from image to image)."""
     points, view = [], []
@@ -373,7 +379,7 @@ def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tu
     term = SilhouetteTerm(np.concatenate(points), np.concatenate(view), [mv for _, mv in frames], sigma_px)
     if measured and len(term.view):
         e = np.abs(term.residuals(T_cam_base, False)[0][:, 0]) * sigma_px
-        spread = [1.4826 * np.median(e[a:b]) if b > a else 0.0 for a, b in zip(term.bounds[:-1], term.bounds[1:])]
+        spread = [robust_sigma(e[a:b]) if b > a else 0.0 for a, b in zip(term.bounds[:-1], term.bounds[1:])]
         term.sigma_px = np.maximum(sigma_px, spread)
     return term
 
@@ -385,7 +391,8 @@ def visible_contour(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskVie
         out = []
         for T_cam_part, P in zip(T_cam_parts, model.contours(T_cam_parts, mv.K, mv.sdt.shape, step_px)):
             Pc = transform_points(T_cam_part, P)
-            out.append(P[~mv.occluded(_project(Pc, mv.K), Pc[:, 2])])  # hidden by what stands in front: no evidence
+            hidden = mv.occluded(project(Pc, mv.K, min_z=1e-9), Pc[:, 2])  # by what stands in front: no evidence
+            out.append(P[~hidden])
         return out
 
     return _reused(mv.contours, (model, step_px), model, T_cam_parts, mv.K, extract)
@@ -472,10 +479,10 @@ def iou_bound(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
         if z - r <= raster.NEAR_M:  # the sphere reaches the near plane: no box holds its image
             return 1.0
         # over the cube around the sphere X/Z and Y/Z are extreme at its corners
-        us = [K[0, 0] * a / b + K[0, 2] for a in (x - r, x + r) for b in (z - r, z + r)]
-        vs = [K[1, 1] * a / b + K[1, 2] for a in (y - r, y + r) for b in (z - r, z + r)]
-        u0, u1 = max(int(np.floor(min(us))), 0), min(int(np.ceil(max(us))), w - 1)
-        v0, v1 = max(int(np.floor(min(vs))), 0), min(int(np.ceil(max(vs))), h - 1)
+        corners = np.array([(a, b, c) for a in (x - r, x + r) for b in (y - r, y + r) for c in (z - r, z + r)])
+        uv = project(corners, K, min_z=raster.NEAR_M)
+        u0, u1 = max(int(np.floor(uv[:, 0].min())), 0), min(int(np.ceil(uv[:, 0].max())), w - 1)
+        v0, v1 = max(int(np.floor(uv[:, 1].min())), 0), min(int(np.ceil(uv[:, 1].max())), h - 1)
         boxes[v0:v1 + 1, u0:u1 + 1] = True  # an empty slice when the box misses the image
     return np.count_nonzero(seen & boxes) / total
 
@@ -483,11 +490,6 @@ def iou_bound(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
 def _strided(mv: MaskView, stride: int) -> tuple[np.ndarray, np.ndarray]:
     """The mask on every `stride`-th pixel and the intrinsics of that grid."""
     return mv.mask[::stride, ::stride], np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K
-
-
-def _project(P: np.ndarray, K: np.ndarray) -> np.ndarray:
-    z = np.maximum(P[:, 2], 1e-9)
-    return np.stack([K[0, 0] * P[:, 0] / z + K[0, 2], K[1, 1] * P[:, 1] / z + K[1, 2]], 1)
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:

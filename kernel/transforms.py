@@ -41,11 +41,6 @@ def xyz_rpy_to_T(xyz, rpy) -> np.ndarray:
     return make_T(rpy_to_R(rpy), xyz)
 
 
-def quat_wxyz_to_R(q) -> np.ndarray:
-    q = np.asarray(q, dtype=float)
-    return Rotation.from_quat(q[..., [1, 2, 3, 0]]).as_matrix()
-
-
 def axis_angle_to_R(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """Rodrigues' formula, vectorised over angles: axis (3,), angle (...) -> (..., 3, 3)."""
     axis = np.asarray(axis, dtype=float)

@@ -94,8 +94,9 @@ def _render_seconds(pixels: int, samples: int) -> float:
 
 
 def _plan_render(args) -> Phase:
-    from syneepose import jobs as J
     from syneepose import paths, resume
+    from syneepose.jobs import (SPLIT, SceneContent, SegmentSelection, frames_done, legacy_preset_digests,
+                                make_jobs, parse_shard, run_job, write_dataset_info, write_root_files)
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
     from syneepose.scene.spec import RenderSettings
@@ -104,7 +105,7 @@ def _plan_render(args) -> Phase:
     preset = load_preset(args.preset, {"segments": args.segments, "frames": args.frames, "samples": args.samples,
                                        "resolution": _resolution(args.resolution)})
     configs = load_catalog().parse_configs(args.robots)
-    shard = J.parse_shard(args.shard)
+    shard = parse_shard(args.shard)
     backgrounds = ()
     if args.backgrounds:
         folder = Path(args.backgrounds)
@@ -119,24 +120,24 @@ def _plan_render(args) -> Phase:
     _writable(out)  # after every check of the flags: a mistake writes nothing
     assets = paths.assets_dir()
     build_assets(assets, configs, log=lambda *_: None)
-    content = J.Content(preset, args.preset, args.seed, args.marker, backgrounds)
+    content = SceneContent(preset, args.preset, args.seed, args.marker, backgrounds)
     width, height = preset.resolution
     render = RenderSettings(width, height, preset.samples, preset.render.denoise, preset.render.max_bounces,
                             args.device, args.depth, args.sensor, _threads(args))
-    plan = J.make_jobs(content, render, J.Selection(tuple(configs), preset.segments, shard), out, assets)
+    plan = make_jobs(content, render, SegmentSelection(tuple(configs), preset.segments, shard), out, assets)
     jobs = plan.jobs
-    stale = resume.check_resume(out, jobs, plan.settings, args.overwrite, J.legacy_preset_digests(content))
+    stale = resume.check_resume(out, jobs, plan.settings, args.overwrite, legacy_preset_digests(content))
     resume.remove_leftovers(out, jobs)
     resume.clear_scenes(stale)
-    J.write_dataset_info(out, plan, assets)
+    write_dataset_info(out, plan, assets)
 
     def finish():  # the root files list what exists, also after a failed or interrupted run; no temp file stays
         resume.remove_leftovers(out, jobs)
-        J.write_root_files(out, preset, width, height)
+        write_root_files(out, preset, width, height)
 
-    return Phase("render", "frame", J.run_job, jobs, {j: J.frames_done(j) for j in jobs},
+    return Phase("render", "frame", run_job, jobs, {j: frames_done(j) for j in jobs},
                  _render_seconds(width * height, preset.samples), finish,
-                 f"render: {len(jobs)} segments in {out / J.SPLIT}")
+                 f"render: {len(jobs)} segments in {out / SPLIT}")
 
 
 def _render(args) -> None:
@@ -230,8 +231,8 @@ def _writable(out: Path) -> None:
 
 def _plan_templates(args) -> Phase:
     from kernel.template_set import check_recipe
-    from syneepose import jobs as J
     from syneepose import paths
+    from syneepose.jobs import TemplateJob, run_template_job, templates_done
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
 
@@ -244,13 +245,13 @@ def _plan_templates(args) -> Phase:
     _writable(out)
     assets = paths.assets_dir()
     build_assets(assets, [f"panda+{n}" for n in names], log=lambda *_: None)
-    jobs = [J.TemplateJob(n, str(out), settings.views, settings.inplane, settings.resolution, settings.samples,
+    jobs = [TemplateJob(n, str(out), settings.views, settings.inplane, settings.resolution, settings.samples,
                           str(assets), args.device, args.inplane_by, _threads(args)) for n in names]
-    done_before = {j: J.templates_done(j) for j in jobs}
+    done_before = {j: templates_done(j) for j in jobs}
     for job in jobs:
         check_recipe(job.folder, job.samples, job.inplane_by, done_before[job] >= job.frames)
     per_render = _render_seconds(settings.resolution**2, settings.samples)
-    return Phase("templates", "template", J.run_template_job, jobs, done_before,
+    return Phase("templates", "template", run_template_job, jobs, done_before,
                  per_render / settings.inplane if args.inplane_by == "rotated" else per_render, lambda: None,
                  f"templates: {len(jobs)} end-effectors in {out / 'templates'}")
 

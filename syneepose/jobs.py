@@ -34,7 +34,7 @@ NAME = "syneepose"  # the BOP data set name of result files: METHOD_syneepose-te
 
 
 @dataclass(frozen=True)
-class Content:
+class SceneContent:
     """What a run's segments show beside each one's configuration and segment index: with those it fixes
     a scene (trajectory, camera, lights, backdrop, board), however it is rendered."""
 
@@ -46,7 +46,7 @@ class Content:
 
 
 @dataclass(frozen=True)
-class Selection:
+class SegmentSelection:
     """Which segments a run renders: `segments` per configuration, every N-th of them with shard i/N."""
 
     configs: tuple[str, ...]
@@ -59,7 +59,7 @@ class Job:
     key: scene_ids.Key
     scene_id: int
     stream: int  # scene_ids.stream: seeds the segment
-    content: Content
+    content: SceneContent
     render: RenderSettings
     out: str
     assets: str
@@ -84,9 +84,9 @@ class Plan:
 
     jobs: list[Job]
     scenes: dict[int, scene_ids.Key]  # every scene of the data set after the run, by id (scene_ids.number)
-    content: Content
+    content: SceneContent
     render: RenderSettings
-    selection: Selection
+    selection: SegmentSelection
     settings: dict  # job_settings
 
 
@@ -102,7 +102,8 @@ def parse_shard(text: str | None) -> tuple[int, int]:
     return i, n
 
 
-def make_jobs(content: Content, render: RenderSettings, selection: Selection, out: Path, assets: Path) -> Plan:
+def make_jobs(content: SceneContent, render: RenderSettings, selection: SegmentSelection, out: Path,
+              assets: Path) -> Plan:
     """Reads the data set in `out` for its scene ids (scene_ids.number), and refuses one they cannot be told for."""
     keys = [scene_ids.Key(config, segment) for config in selection.configs for segment in range(selection.segments)]
     scenes, segments = scene_ids.number(out, keys, selection.segments)
@@ -114,7 +115,7 @@ def make_jobs(content: Content, render: RenderSettings, selection: Selection, ou
     return Plan(jobs[i::n], scenes, content, render, selection, settings)
 
 
-def job_settings(content: Content, render: RenderSettings, segments: int) -> dict:
+def job_settings(content: SceneContent, render: RenderSettings, segments: int) -> dict:
     """What fixes a segment's pixels and ground truth, beside its configuration and segment index: a resume
     must ask for exactly these, or it would mix two renders in one scene. The preset and the sensor profile
     count by content (a sha256 of what was read), not by name; `segments` is the data set's S (scene_ids.py),
@@ -130,7 +131,7 @@ def job_settings(content: Content, render: RenderSettings, segments: int) -> dic
             "backgrounds": [Path(b).name for b in content.backgrounds]}
 
 
-def legacy_preset_digests(content: Content) -> set[str]:
+def legacy_preset_digests(content: SceneContent) -> set[str]:
     """preset_sha256 values that scenes rendered before issue 16 recorded for the same frames."""
     return {_digest(c) for c in load_preset(content.preset_name).legacy_digest_contents()}
 

@@ -16,14 +16,11 @@ import numpy as np
 
 from kernel.bop import read_frame
 from kernel.dataset import Dataset
+from kernel.drawing import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
 from kernel.errors import UserError
 from kernel.files import write_png
 from kernel.template_set import INDEX, read_index, read_template
 
-GT_COLOUR = (255, 230, 0)  # yellow: the ground-truth silhouette, here and in the pose overlays
-BACKGROUND = (32, 32, 32)
-TEXT = (235, 235, 235)
-FONT, FONT_SCALE, LINE_H = cv2.FONT_HERSHEY_SIMPLEX, 0.35, 14
 PAD = 4
 
 MAX_FRAMES, MAX_WIDTH = 16, 640  # a sheet is for looking at: 18 configurations x 16 frames x 640x480 is ~270 MB
@@ -42,13 +39,6 @@ class Sheet:
     tiles: list[Tile]
 
 
-def draw_outline(image: np.ndarray, mask: np.ndarray, colour, thickness: int = 1) -> np.ndarray:
-    """`image` with the boundary of `mask` (holes included) drawn on it, in place."""
-    contours, _ = cv2.findContours(np.asarray(mask, dtype=np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
-    cv2.drawContours(image, contours, -1, colour, thickness, cv2.LINE_8)
-    return image
-
-
 def depth_colours(depth: np.ndarray) -> np.ndarray:
     """Turbo colour map stretched over the frame's valid depths (near = blue); no depth is black."""
     valid = depth > 0
@@ -61,22 +51,9 @@ def depth_colours(depth: np.ndarray) -> np.ndarray:
     return out
 
 
-def caption(width: int, text: str) -> np.ndarray:
-    """One line of text on a dark strip (Hershey fonts: ASCII only)."""
-    strip = np.full((LINE_H, width, 3), BACKGROUND, np.uint8)
-    cv2.putText(strip, text, (3, LINE_H - 4), FONT, FONT_SCALE, TEXT, 1, cv2.LINE_AA)
-    return strip
-
-
 def resize(image: np.ndarray, width: int) -> np.ndarray:
     height = max(1, round(image.shape[0] * width / image.shape[1]))
     return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
-
-
-def side_by_side(images: list[np.ndarray], gap: int = 2) -> np.ndarray:
-    """Images of one height in a row, `gap` dark pixels apart."""
-    spacer = np.full((images[0].shape[0], gap, 3), BACKGROUND, np.uint8)
-    return np.hstack([part for im in images for part in (spacer, im)][1:])
 
 
 def grid(images: list[np.ndarray], columns: int) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:

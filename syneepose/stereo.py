@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 from pydantic import Field, field_validator
 
+from kernel.camera import project
 from kernel.errors import UserError
 from kernel.settings import Section, number_range, validate
 from kernel.transforms import make_T
@@ -52,10 +53,6 @@ class SensorProfile:
     @property
     def T_irleft_irright(self) -> np.ndarray:
         return make_T(t=[self.baseline, 0.0, 0.0])
-
-    def expected_error(self, depth: float, width: int, height: int, disparity_noise: float = 0.1) -> float:
-        """1-sigma depth error of a `disparity_noise` px disparity error: z^2 * dd / (f * b)."""
-        return depth**2 * disparity_noise / (self.ir_K(width, height)[0, 0] * self.baseline)
 
 
 class _Projector(Section):
@@ -178,8 +175,7 @@ def to_rgb_camera(depth_ir: np.ndarray, K_ir: np.ndarray, T_rgb_ir: np.ndarray, 
     zr = pts[:, 2]
     front = zr > 0
     pts, zr = pts[front], zr[front]
-    ur = K_rgb[0, 0] * pts[:, 0] / zr + K_rgb[0, 2]
-    vr = K_rgb[1, 1] * pts[:, 1] / zr + K_rgb[1, 2]
+    ur, vr = project(pts, K_rgb, min_z=0.0).T
     half = 0.5 * (K_rgb[0, 0] / K_ir[0, 0]) * (z[front] / zr)  # half the footprint, RGB pixels
     reach = int(np.ceil(half.max())) if len(half) else 0
     ux, vy = np.floor(ur + 0.5), np.floor(vr + 0.5)  # nearest pixel centre: always covered

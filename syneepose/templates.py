@@ -34,13 +34,13 @@ def intrinsics(resolution: int) -> np.ndarray:
     return np.array([[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]])
 
 
-def poses(n_views: int, n_inplane: int, center: np.ndarray, radius: float) -> list[tuple[int, int, np.ndarray]]:
+def poses(n_views: int, n_inplane: int, centre: np.ndarray, radius: float) -> list[tuple[int, int, np.ndarray]]:
     """(view, inplane, T_cam_model) with the model's bounding-sphere centre on the optical axis."""
     distance = radius / np.sin(np.deg2rad(FOV_DEG) / 2 * FILL)
     out = []
     for v, direction in enumerate(fibonacci_sphere(n_views)):
         up = (0.0, 0.0, 1.0) if abs(direction[2]) < 0.99 else (1.0, 0.0, 0.0)
-        T_model_cam = look_at(center + distance * direction, center, up)
+        T_model_cam = look_at(centre + distance * direction, centre, up)
         for k in range(n_inplane):
             a = 2 * np.pi * k / n_inplane
             roll = make_T(np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]]))

@@ -171,8 +171,8 @@ def test_readers_take_the_split_from_dataset_info(tmp_path):
 
 
 def _plan(out):
-    content = jobs.Content(load_preset("mini"), "mini", seed=0)
-    return jobs.make_jobs(content, RenderSettings(W, H, 1), jobs.Selection(("panda+panda_hand",), 1), out, out)
+    content = jobs.SceneContent(load_preset("mini"), "mini", seed=0)
+    return jobs.make_jobs(content, RenderSettings(W, H, 1), jobs.SegmentSelection(("panda+panda_hand",), 1), out, out)
 
 
 def test_dataset_info_names_the_test_split_and_copies_models_eval_when_built(tmp_path):

@@ -24,6 +24,7 @@ from eval.metrics import WORKSPACE_POINTS, calibration_error
 from eval.model_points import MAX_QUERY
 from eval.records import read_errors
 from kernel.bop import Frame, SceneMeta, SceneWriter, read_frame, read_scene
+from kernel.cli import DEBUG_ENV, run_command
 from kernel.errors import UserError
 from kernel.files import write_png
 from kernel.transforms import make_T
@@ -398,6 +399,21 @@ def test_registry_names_a_broken_method_module(method_files, capsys):
     assert "--method broken: method 'broken' failed to load: eval.methods.broken: RuntimeError" in help_text
     assert "--method feepe: --variant {A,B,C,D} ablation variant (default: D)" in help_text
     assert "--method handeye: --hand-eye {tsai,park,horaud,andreff,daniilidis}" in help_text
+
+
+def test_a_broken_method_is_one_line_and_its_import_traceback_on_the_debug_switch(method_files, capsys, monkeypatch):
+    (method_files / "needy.py").write_text("import a_package_nobody_has\n")
+    monkeypatch.delenv(DEBUG_ENV, raising=False)
+    assert run_command(lambda: methods.get_method("needy")) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err and f"({DEBUG_ENV}=1 shows the traceback)" in err
+    monkeypatch.setenv(DEBUG_ENV, "1")
+    sys.modules.pop("eval.methods.needy", None)
+    assert run_command(lambda: methods.get_method("needy")) == 2
+    err = capsys.readouterr().err
+    assert 'needy.py", line 1, in <module>' in err
+    assert "ModuleNotFoundError: No module named 'a_package_nobody_has'" in err
+    assert err.splitlines()[-1].startswith("error: method 'needy' failed to load: eval.methods.needy: ModuleNotFound")
 
 
 TOY_METHOD = '''"""`toy-offset`: the ground truth moved along the camera's x axis, a method in one file."""

@@ -11,7 +11,7 @@ from feepe.depth import normal_map
 from feepe.icp import PlaneTerm, PlaneTerms, SurfaceModel, depth_agreement, depth_distances, robust_scale
 from feepe.matching import best_buddies
 from feepe.memory import MemoryEntry, MemoryPool
-from feepe.optimize import OptimizeOptions, _step, optimize, stack
+from feepe.optimize import OptimizeOptions, _step, optimize, robust_sigma, stack
 from feepe.pnp import solve_pnp
 from feepe.symmetry import consensus
 from kernel.transforms import inv_T, make_T, rotation_angle, transform_points
@@ -37,7 +37,7 @@ def test_crop_maps_points_and_intrinsics():
     X = np.array([[0.01, -0.02, 0.5], [0.03, 0.0, 0.7]])
     uv = _project(np.eye(4), X, K)
     uv_crop = _project(np.eye(4), X, crop.K)
-    np.testing.assert_allclose(crop.to_original(uv_crop), uv, atol=1e-9)
+    np.testing.assert_allclose(uv @ crop.A[:2, :2].T + crop.A[:2, 2], uv_crop, atol=1e-9)  # K moved with the pixels
     assert crop.mask.sum() > 0 and (crop.rgb[~crop.mask] == 0).all()
     # the padded mask box fills the crop: 40 px tall box, 1.2 x padding -> 96 px
     ys = np.nonzero(crop.mask.any(1))[0]
@@ -164,6 +164,14 @@ def test_depth_agreement_tells_the_right_calibration_from_a_turned_one():
     assert depth_agreement(off, 0.25) < depth_agreement(off, 1.0) < depth_agreement(off, 4.0)
     empty = depth_distances(T_cam_base, [(T_base_ee[0], np.zeros((0, 3)))], model, 0.002, 0.0036)
     assert len(empty) == 0 and np.isnan(depth_agreement(empty, 1.0)) and robust_scale(empty) == 1.0
+
+
+def test_robust_sigma_is_the_scaled_median_absolute_residual():
+    """The one robust scale of the depth term (icp.robust_scale) and of each mask (contour_term's spread), as
+    both wrote it: 1.4826 x the median |residual|."""
+    r = np.array([-3.0, 1.0, 2.0, -0.5, 10.0])
+    assert robust_sigma(r) == 1.4826 * 2.0 == robust_scale(r)
+    assert robust_scale(r / 100) == 0.25  # at least min_scale
 
 
 class _Misled:

@@ -7,6 +7,7 @@ from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from feepe import raster
 from feepe.depth import backproject
+from kernel.camera import project
 from kernel.transforms import inv_T
 
 K = np.array([[300.0, 0, 80], [0, 300.0, 60], [0, 0, 1]])
@@ -76,3 +77,11 @@ def test_the_mask_of_image_triangles_is_the_z_buffers():
         vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
         depth = raster.render_depth(vertices, faces, T, K, SHAPE)
         assert np.array_equal(raster.mask(raster.triangles(vertices, faces, T, K)[0], SHAPE), depth > 0)
+
+
+def test_compiled_projection_is_the_kernels_bit_for_bit():
+    """to_pixel (the compiled loops' projection: triangles, rim samples, contour rows) = kernel.camera.project."""
+    rng = np.random.default_rng(0)
+    P = np.column_stack([rng.uniform(-0.5, 0.5, (1000, 2)), rng.uniform(-0.2, 3.0, 1000)])
+    np.testing.assert_array_equal(raster._pixels(P, *K[[0, 1, 0, 1], [0, 1, 2, 2]]),
+                                  project(P, K, min_z=raster.NEAR_M))

@@ -10,7 +10,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import pytest
 
-from syneepose.show import LINE_H
+from kernel.drawing import LINE_H
 
 
 def _run(*args):

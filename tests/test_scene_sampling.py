@@ -9,7 +9,7 @@ import pytest
 from kernel.bop import Frame, SceneMeta, SceneWriter, read_scene
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
-from syneepose.jobs import Content, Selection, make_jobs, parse_shard
+from syneepose.jobs import SceneContent, SegmentSelection, make_jobs, parse_shard
 from syneepose.preset import load_preset, parse_preset
 from syneepose.scene.motion import min_jerk, trajectory
 from syneepose.scene.sample import distractors, kelvin_to_rgb, look_at, rng_for
@@ -61,10 +61,11 @@ def test_fibonacci_templates_cover_the_sphere():
 
 
 def test_scene_ids_are_stable_across_subsets_and_shards(tmp_path):
-    content, render = Content(load_preset("mini"), "mini", seed=0), RenderSettings(64, 48, 2)
+    content, render = SceneContent(load_preset("mini"), "mini", seed=0), RenderSettings(64, 48, 2)
 
     def ids(configs, shard=(0, 1)):
-        return [j.scene_id for j in make_jobs(content, render, Selection(configs, 2, shard), tmp_path, tmp_path).jobs]
+        plan = make_jobs(content, render, SegmentSelection(configs, 2, shard), tmp_path, tmp_path)
+        return [j.scene_id for j in plan.jobs]
 
     full = ids(("panda+panda_hand", "ur5e+robotiq_2f85"))
     assert set(ids(("ur5e+robotiq_2f85",))) <= set(full)

@@ -7,7 +7,8 @@ import sys
 import cv2
 import numpy as np
 
-from syneepose.show import GT_COLOUR, LINE_H, PAD, contact_sheet
+from kernel.drawing import GT_COLOUR, LINE_H
+from syneepose.show import PAD, contact_sheet
 from tests.conftest import TINY_CONFIGS, TINY_TEMPLATES
 
 

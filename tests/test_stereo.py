@@ -67,7 +67,7 @@ def test_stereo_plane_matches_the_profile_noise(tmp_path, assets):
     assert proc.returncode == 0, proc.stderr[-2000:]
     r = np.load(out)
     profile = load_profile("d435")
-    sigma = profile.expected_error(1.0, 320, 240)  # 0.1 px at the IR focal length and baseline
+    sigma = 1.0**2 * 0.1 / (profile.ir_K(320, 240)[0, 0] * profile.baseline)  # z^2 dd / (f b): 0.1 px at 1 m
     valid = r["sensed"] > 0
     err = r["sensed"][valid] - 1.0
     assert abs(np.median(err)) <= sigma and np.median(np.abs(err)) <= sigma

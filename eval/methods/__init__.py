@@ -3,7 +3,8 @@ runners.
 
 Every module of this package but `base` is one method, named as its module with '_' spelled '-'
 (`bop_csv.py` is `--method bop-csv`), so a new method is one new file. It is imported only when asked for,
-so a method with heavy or missing dependencies breaks only itself, with an error that names it.
+so a method with heavy or missing dependencies breaks only itself, with an error line that names it (and,
+with SYNEEPOSE_DEBUG=1, the traceback of the failed import above it: kernel/cli.py).
 
 A method declares its options once, as a dataclass of `option(...)` fields in its class attribute `Options`;
 the command line, its help and the checks below are made from it, and the method is built with one instance.
@@ -15,6 +16,7 @@ import dataclasses
 import importlib
 import pkgutil
 
+from kernel.cli import DEBUG_ENV
 from kernel.errors import UserError
 
 _REGISTRY: dict[str, type] = {}
@@ -60,7 +62,8 @@ def get_method(name: str) -> type:
         try:
             importlib.import_module(module)
         except Exception as exc:
-            raise UserError(f"method {name!r} failed to load: {module}: {type(exc).__name__}: {exc}") from exc
+            raise UserError(f"method {name!r} failed to load: {module}: {type(exc).__name__}: {exc} "
+                            f"({DEBUG_ENV}=1 shows the traceback)") from exc
         if name not in _REGISTRY:
             raise UserError(f"method {name!r}: {module} registers no method of that name (@register({name!r}))")
     if name not in _REGISTRY:

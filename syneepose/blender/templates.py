@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from kernel.template_set import Template, TemplateSetWriter
-from syneepose import templates as T
+from syneepose.templates import intrinsics, poses, roll_template
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import linear_to_srgb8
 from syneepose.robots.ee_models import rigid_mesh
@@ -20,16 +20,16 @@ def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane:
                      samples: int, device: str = "cpu", progress=None, inplane: str = "rotated",
                      threads: int = 0) -> int:
     """Render the templates not yet on disk; returns how many were written. `inplane="rotated"` renders each
-    view once and rolls the images for its in-plane rotations (T.roll_template); "rendered" renders every
+    view once and rolls the images for its in-plane rotations (roll_template); "rendered" renders every
     template, the reference the rotation is tested against."""
     writer = TemplateSetWriter(folder, ee.obj_id, samples, inplane)
     model = read_urdf(part_urdf)
     canonical = dict(ee.canonical)
     mesh = rigid_mesh(model, Path(part_urdf).parent, canonical)
-    center = mesh.bounds.mean(0)
-    radius = float(np.linalg.norm(mesh.vertices - center, axis=1).max())
-    K = T.intrinsics(resolution)
-    planned = list(enumerate(T.poses(n_views, n_inplane, center, radius)))
+    centre = mesh.bounds.mean(0)
+    radius = float(np.linalg.norm(mesh.vertices - centre, axis=1).max())
+    K = intrinsics(resolution)
+    planned = list(enumerate(poses(n_views, n_inplane, centre, radius)))
     todo = [(i, v, k, pose) for i, (v, k, pose) in planned if not writer.done(i)]
     if not todo:
         return 0
@@ -45,7 +45,7 @@ def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane:
         templates = []
         for i, _, k, T_cam_model in planned_view:
             if inplane == "rotated":
-                rgb, depth, mask = T.roll_template(*view_images, 2 * np.pi * k / n_inplane)
+                rgb, depth, mask = roll_template(*view_images, 2 * np.pi * k / n_inplane)
             else:
                 rgb, depth, mask = _render(T_cam_model, folder)
             templates.append(Template(i, view, k, K, T_cam_model, rgb, depth, mask))

@@ -70,10 +70,6 @@ class Robot:
         return arm_links(self.model, set(self.ee_links))
 
     @property
-    def arm_joints(self) -> tuple[str, ...]:
-        return self.arm.joints
-
-    @property
     def canonical(self) -> dict[str, float]:
         return dict(self.ee.canonical)
 

@@ -44,15 +44,3 @@ def check_symmetry(mesh: trimesh.Trimesh, axis: str, order: int, tolerance: floa
     d = diameter(mesh)
     worst = max(symmetry_error(mesh, T, n_samples) for T in symmetry_transforms(axis, order)) / d
     return worst <= tolerance, worst
-
-
-def measure_symmetries(mesh: trimesh.Trimesh, orders=(0, 2, 3, 4, 6), tolerance: float = 0.01,
-                       n_samples: int = 1000) -> dict[tuple[str, int], float]:
-    """Worst relative error of every candidate (axis through the origin, order)."""
-    d = diameter(mesh)
-    out = {}
-    for axis in AXES:
-        for order in orders:
-            out[(axis, order)] = max(symmetry_error(mesh, T, n_samples)
-                                     for T in symmetry_transforms(axis, order)) / d
-    return out

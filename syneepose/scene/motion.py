@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from kernel.camera import project
 from kernel.transforms import inv_T, transform_points
 from syneepose.robots.model import read_urdf
 
@@ -103,7 +104,7 @@ class MotionChecks:
         for i in range(len(q)):
             p_cam = transform_points(T_cam_base @ poses[self.robot.ee_root][i], points_ee)
             z = p_cam[:, 2]
-            uv = p_cam[:, :2] / np.maximum(z, 1e-9)[:, None] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+            uv = project(p_cam, K, min_z=1e-9)
             ok = (z > 0.05) & (uv[:, 0] >= margin * width) & (uv[:, 0] <= (1 - margin) * width - 1) \
                 & (uv[:, 1] >= margin * height) & (uv[:, 1] <= (1 - margin) * height - 1)
             inside[i] = ok.mean()
