@@ -13,6 +13,9 @@ from eval.metrics import auc
 from eval.records import FrameErrors
 
 THRESHOLDS_M = {"1cm": 0.01, "2cm": 0.02}
+SPREAD_DRAWS = 1000  # bootstrap draws of the segments behind the Average
+SPREAD_SEED = 0
+SPREAD_PERCENTILES = (5.0, 95.0)
 
 
 def accuracy(rows: list[FrameErrors]) -> dict:
@@ -59,6 +62,7 @@ def summarise(rows: list[FrameErrors]) -> dict:
         "n_frames": len(rows),
         "n_failures": sum(r.failed for r in rows),
         "average": {k: float(np.mean([acc[k] for acc in per_ee.values()])) for k in metric_keys},
+        "average_spread": segment_spread(rows),
         "per_end_effector": per_ee,
         "per_config": _grouped(rows, "config"),
         "calibration": {"n_frames": sum(not math.isnan(r.calib_trans_mm) for r in rows),
@@ -70,6 +74,34 @@ def summarise(rows: list[FrameErrors]) -> dict:
         "ms_per_frame": _ms([r.time_s for r in rows]),
         "wall_ms_per_frame": _ms([r.wall_s for r in rows]),
     }
+
+
+def segment_spread(rows: list[FrameErrors], key: str = "1cm") -> dict | None:
+    """Where the Average AUC@key of ADD and ADD-S falls (5th and 95th percentile) when each end-effector's
+    segments are drawn again with replacement (bootstrap over segments, SPREAD_DRAWS draws, SPREAD_SEED): the
+    spread a reader should expect from other segments of the same kind, so that a difference of a few points
+    between runs on different data is not read as a result. None when an end-effector has one segment.
+
+    The AUC of a set of frames is the mean of each frame's own AUC (the accuracy curve is their mean), so a
+    draw sums per-segment totals instead of recomputing curves."""
+    segments = defaultdict(lambda: defaultdict(list))
+    for r in rows:
+        segments[r.end_effector][r.scene_id].append(r)
+    if any(len(per) < 2 for per in segments.values()):
+        return None
+    rng = np.random.default_rng(SPREAD_SEED)
+    out = {"segments": sum(len(per) for per in segments.values()), "draws": SPREAD_DRAWS,
+           "percentiles": list(SPREAD_PERCENTILES)}
+    draws = {name: rng.integers(0, len(per), (SPREAD_DRAWS, len(per))) for name, per in sorted(segments.items())}
+    for metric, attr in (("add", "add_m"), ("adds", "adds_m")):
+        averages = np.zeros(SPREAD_DRAWS)
+        for name, per in sorted(segments.items()):
+            totals = np.array([sum(auc([getattr(r, attr)], THRESHOLDS_M[key]) for r in seg) for seg in per.values()])
+            counts = np.array([len(seg) for seg in per.values()], dtype=float)
+            idx = draws[name]
+            averages += totals[idx].sum(1) / counts[idx].sum(1) / len(segments)
+        out[f"{metric}@{key}"] = [float(v) for v in np.percentile(averages, SPREAD_PERCENTILES)]
+    return out
 
 
 def _own_masks(rows: list[FrameErrors]) -> dict | None:

@@ -67,13 +67,13 @@ def test_all_tables_in_three_formats_with_measured_and_reported_rows(result_dirs
 
     table1 = {row[0]: row for row in _rows(out / "table1.csv")}
     assert table1["FEEPE (reported)"][1:] == ["85.24/86.29", "85.24/86.36", "84.53/85.23", "88.73/91.67",
-                                              "84.33/86.11", "84.87/86.15", "29.27/48.71", "77.46/81.50", "67"]
-    assert table1["MegaPose† (reported)"][-1] == "2980"
+                                              "84.33/86.11", "84.87/86.15", "29.27/48.71", "77.46/81.50", "67", "–"]
+    assert table1["MegaPose† (reported)"][-2] == "2980"
     tuned, peer = table1["Tuned D (sift-normals, synthetic)"], table1["Peer (synthetic)"]
     kinova, gripper = reported.TABLE1_COLUMNS.index("kinova_3f") + 1, reported.TABLE1_COLUMNS.index("robotiq_2f85") + 1
     assert tuned[kinova] == tuned[gripper] == "100.00/100.00" and tuned[1] == "–"  # no Franka hand scene
     assert float(peer[kinova].split("/")[0]) == pytest.approx(70.0, abs=0.1)  # ADD = 3 mm
-    assert tuned[-2:] == ["100.00/100.00", "50"] and peer[7] == "–"
+    assert tuned[-3:] == ["100.00/100.00", "50", "–"] and peer[7] == "–"  # one segment per end-effector: no spread
 
     ablation = _rows(out / "ablation.csv")
     assert ["A", "FEEPE (reported)", "7.50", "19.49"] in ablation
@@ -89,7 +89,7 @@ def test_all_tables_in_three_formats_with_measured_and_reported_rows(result_dirs
 
     markdown, latex = (out / "table1.md").read_text(), (out / "table1.tex").read_text()
     assert "| Tuned D (sift-normals, synthetic) | – | 100.00/100.00 |" in markdown
-    assert r"MegaPose\dag{} (reported) & " in latex and r"\begin{tabular}{llllllllll}" in latex
+    assert r"MegaPose\dag{} (reported) & " in latex and r"\begin{tabular}{lllllllllll}" in latex
     combined = (out / "tables.md").read_text()
     assert all(f"## {t}" in combined for t in ("Table I", "Ablation", "DINOv2 layer", "Hyperparameters",
                                                "Robot pose", "Accuracy curves", "Convergence along the segments"))
