@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import html
 import json
+import math
 import os
 import re
 import shutil
@@ -108,8 +109,11 @@ def _caption(row: FrameErrors) -> str:
     where = f"scene {row.scene_id}, frame {row.im_id}"
     if row.failed:
         return f"{where}: no estimate"
-    return (f"{where}: ADD {_mm(row.add_m)}, ADD-S {_mm(row.adds_m)}, rotation {row.rot_err_deg:.1f} deg, "
+    text = (f"{where}: ADD {_mm(row.add_m)}, ADD-S {_mm(row.adds_m)}, rotation {row.rot_err_deg:.1f} deg, "
             f"translation {row.trans_err_mm:.1f} mm")
+    if not math.isnan(row.ee_mask_iou):
+        text += f", own masks' IoU {row.ee_mask_iou:.2f} (end-effector) {row.robot_mask_iou:.2f} (robot)"
+    return text
 
 
 def worst_frames(rows: list[FrameErrors], n: int) -> dict[str, list[FrameErrors]]:
@@ -142,18 +146,21 @@ def gallery(results: ResultFolder, root: Path, folder: str, worst: int, gif: boo
 
 def _metadata(runs: list[Run]) -> str:
     header = ["Run", "Folder", "Data set", "Frames", "No estimate", "AUC@1cm ADD/ADD-S", "ms/frame",
-              "Calibration median", "Commit"]
+              "Calibration median", "Own masks' median IoU (end-effector / robot)", "Commit"]
     rows = []
     for run in runs:
         s = run.summary
         calib = s.get("calibration") or {}
         calib_text = (f"{calib['trans_mm']['median']:.1f} mm / {calib['rot_deg']['median']:.2f} deg"
                       if calib.get("n_frames") else "–")
+        own = s.get("own_masks")
+        own_text = "–" if not own else " / ".join("–" if own[k] is None else f"{own[k]['median']:.3f}"
+                                                   for k in ("ee_iou", "robot_iou"))
         avg = s["average"]
         rows.append([run.label, str(run.path), f"{s['dataset']['path']} ({s['dataset'].get('preset') or '–'})",
                      s["n_frames"], s["n_failures"], f"{avg['add@1cm']:.2f}/{avg['adds@1cm']:.2f}",
                      "–" if s["ms_per_frame"] is None else f"{s['ms_per_frame']:.1f}", calib_text,
-                     s.get("git_commit") or "–"])
+                     own_text, s.get("git_commit") or "–"])
     table = ("<table><tr>" + "".join(f"<th>{_e(h)}</th>" for h in header) + "</tr>"
              + "".join("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in row) + "</tr>" for row in rows) + "</table>")
     details = [f"<details><summary>{_e(run.label)}: options and versions</summary><pre>"

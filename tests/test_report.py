@@ -89,3 +89,22 @@ def test_report_replaces_a_report_and_refuses_other_folders(feepe_run, tmp_path)
     proc = _run("eval.report", feepe_run, "--out", tmp_path / "notes")
     assert proc.returncode == 2 and "not a report" in proc.stderr and "Traceback" not in proc.stderr
     assert (tmp_path / "notes" / "todo.txt").read_text() == "mine"
+
+
+def test_own_masks_are_shown_in_the_run_table_and_the_captions(tmp_path):
+    from eval import report
+    from eval.tables import Run
+    from tests.test_eval_summary import _frame
+
+    summary = {"method": "feepe", "dataset": {"path": "data/mini"}, "n_frames": 2, "n_failures": 0,
+               "average": {"add@1cm": 90.0, "adds@1cm": 95.0}, "ms_per_frame": 80.0,
+               "own_masks": {"n_frames": 2, "ee_iou": {"median": 0.9512, "mean": 0.95},
+                             "robot_iou": {"median": 0.9871, "mean": 0.98}}}
+    table = report._metadata([Run(tmp_path, summary, "FEEPE")])
+    assert "<td>0.951 / 0.987</td>" in table and "Own masks" in table
+    given = report._metadata([Run(tmp_path, {**summary, "own_masks": None}, "FEEPE")])
+    assert "<td>– / –</td>" not in given and "<td>–</td>" in given
+    row = _frame("a", 0, 0.001)
+    row.ee_mask_iou, row.robot_mask_iou = 0.9, 0.95
+    assert report._caption(row).endswith("own masks' IoU 0.90 (end-effector) 0.95 (robot)")
+    assert "IoU" not in report._caption(_frame("a", 0, 0.001))
