@@ -36,6 +36,7 @@ from kernel.transforms import inv_T, rotation_angle, transform_points
 VARIANTS = ("A", "B", "C", "D")
 REFINEMENTS = ("none", "silhouette", "silhouette+depth")
 SILHOUETTES = ("ee", "robot")
+GIVEN_MASKS = ("truth", "prior")
 IOU_STRIDE = 2  # the refinement's decisions compare mask IoUs on every second pixel
 RENDERER = "zbuffer"  # how the refinement renders masks and tests outlines (feepe/raster.py; before: Embree rays)
 CHOICE = "iou x scaled depth agreement"  # the refinement with depth picks among descents so (before: IoU alone)
@@ -76,6 +77,8 @@ class FeepeOptions:
     icp_sigma_m: float = 0.002
     refine: str = "none"  # "silhouette": our multi-frame mask alignment (feepe/silhouette.py); "+depth": with depth
     silhouette: str = "ee"  # the outline fitted: "ee" (the paper's input, the end-effector's mask) or "robot"
+    given_masks: str = "truth"  # masks handed in: taken as they are, or ("prior") one more signal of the
+    # estimator's own segmentation, weighed by how well they agree with it (needs silhouette="robot")
     silhouette_sigmas_px: tuple = (4.0, 2.0, 1.0)  # coarse to fine: the robust kernel's scale per stage
     silhouette_rounds: int = 3  # contour re-extractions per stage
     silhouette_starts: int = 3  # starting calibrations refined; the best mask IoU is kept
@@ -116,6 +119,11 @@ class FeepeOptions:
             raise UserError("variant A is PnP only; silhouette refinement needs variant B, C or D")
         if self.silhouette not in SILHOUETTES:
             raise UserError(f"silhouette {self.silhouette!r} unknown; choose one of {', '.join(SILHOUETTES)}")
+        if self.given_masks not in GIVEN_MASKS:
+            raise UserError(f"given_masks {self.given_masks!r} unknown; choose one of {', '.join(GIVEN_MASKS)}")
+        if self.given_masks == "prior" and self.silhouette != "robot":
+            raise UserError("given_masks 'prior' weighs the masks against the estimator's own segmentation of the "
+                            "robot; it needs silhouette 'robot'")
         if self.silhouette != "ee" and self.refine == "none":
             raise UserError(f"silhouette {self.silhouette!r} is what the refinement fits; it needs refine "
                             "silhouette or silhouette+depth")
@@ -173,6 +181,8 @@ def describe(opts: FeepeOptions, backbone) -> dict:
         out.pop("robot_start_frames")
     if not opts.silhouette_refit_growth:  # as runs before the option existed
         out.pop("silhouette_refit_growth")
+    if opts.given_masks == "truth":  # likewise
+        out.pop("given_masks")
     if opts.refine != "none":  # the refinement's estimates changed with the rasteriser (results.md, sixth
         out["silhouette_renderer"] = RENDERER  # step): a run stored before it is not resumed by this code
     if opts.depth_in_refinement:  # so did its choice among descents, with depth (results.md, eleventh step)
@@ -229,13 +239,15 @@ class Estimator:
         read by) the robot silhouette. `mask` None: no mask of any kind is given, and the estimator finds
         the robot and segments it itself (feepe/registration.py, feepe/segmentation.py): it then needs the
         arm's links (reset(arm=...)) and each frame's link poses (robot=RobotView(None, T_base_links)).
-        `depth` None: an RGB camera (as depth 0 everywhere: no depth)."""
+        With `given_masks="prior"` the masks handed in (`mask`, `robot.mask`) enter that segmentation as one
+        more signal. `depth` None: an RGB camera (as depth 0 everywhere: no depth)."""
         depth = np.zeros(np.shape(rgb)[:2]) if depth is None else depth
         _check_inputs(rgb, depth, mask, K, T_base_ee)
         t_start = time.perf_counter()
-        if mask is None:
+        if mask is None or self.opts.given_masks == "prior":
             return self._step_unmasked(rgb, np.asarray(depth, float), np.asarray(K, float),
-                                       np.asarray(T_base_ee, float), robot, t_start)
+                                       np.asarray(T_base_ee, float), robot, t_start,
+                                       None if mask is None else np.asarray(mask, bool))
         found = frame_candidates(rgb, depth, np.asarray(mask, bool), K, self.bank, self.backbone, self.opts.single)
         if found is None:
             found = FrameCandidates(np.eye(3), [], 0, {})
@@ -269,7 +281,7 @@ class Estimator:
         return FrameResult(T_cam_ee, T_cam_base, score, len(found.candidates), n_keys, timings)
 
     def _step_unmasked(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_base_ee: np.ndarray,
-                       robot: RobotView | None, t_start: float) -> FrameResult:
+                       robot: RobotView | None, t_start: float, ee_mask: np.ndarray | None = None) -> FrameResult:
         """No mask: the robot is found in the first frames' depth (several hypotheses, judged as frames
         arrive), each frame is segmented at the calibration so far, the template path crops the predicted
         end-effector, and the robot's outline is fitted to the estimator's own segmentation. A frame before
@@ -277,7 +289,9 @@ class Estimator:
         if self._robot_samples is None:
             raise UserError("with no mask the estimator finds the robot itself: reset(arm=[SilhouetteModel(...), ...]) "
                             "with the arm's link meshes, on an Estimator with silhouette='robot'")
-        robot = _check_robot(robot, depth.shape, len(self.parts.parts) - 1, masked=False)
+        given = ee_mask is not None and robot is not None and robot.mask is not None  # masks as a prior
+        robot = _check_robot(robot, depth.shape, len(self.parts.parts) - 1, masked=given)
+        robot_mask = robot.mask
         T_base_parts = np.concatenate([T_base_ee[None], robot.T_base_links])
         timings: dict = {}
         with _BLAS.limit(limits=1, user_api="blas"):
@@ -291,7 +305,8 @@ class Estimator:
                 timings["total"] = 1e3 * (time.perf_counter() - t_start)
                 return FrameResult(None, None, 0.0, 0, 0, timings)
             t0 = time.perf_counter()
-            seen = segment(self.parts.coarse, T, T_base_parts, rgb, depth, K, self.colour, self._band_px)
+            seen = segment(self.parts.coarse, T, T_base_parts, rgb, depth, K, self.colour, self._band_px,
+                           robot_mask=robot_mask, ee_mask=ee_mask)
             timings["segmentation"] = 1e3 * (time.perf_counter() - t0)
             self._refresh_key_frames(T)
         found = frame_candidates(rgb, depth, seen.ee, K, self.bank, self.backbone, self.opts.single)
@@ -313,7 +328,8 @@ class Estimator:
             self._band_px = float(np.clip(BAND_PER_PX * self.parts.motion_px(placed(T, T_base_parts),
                                                                            placed(T_new, T_base_parts), K),
                                           BAND_MIN_PX, BAND_START_PX))
-            seen = segment(self.parts.coarse, T_new, T_base_parts, rgb, depth, K, self.colour, BAND_MIN_PX)
+            seen = segment(self.parts.coarse, T_new, T_base_parts, rgb, depth, K, self.colour, BAND_MIN_PX,
+                           robot_mask=robot_mask, ee_mask=ee_mask)
             self.colour.learn(rgb, seen)
             found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
             timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
@@ -355,7 +371,7 @@ class Estimator:
             K = entry.found.silhouette.K
             if self.parts.motion_px(placed(seen.T_cam_base, entry.found.parts), placed(T, entry.found.parts), K) > 1.0:
                 again = segment(self.parts.coarse, T, entry.found.parts, seen.rgb, seen.depth, K, self.colour,
-                                BAND_MIN_PX)
+                                BAND_MIN_PX, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask)
                 entry.found.segmentation, entry.found.silhouette = again, mask_view(again.robot, K, seen.depth)
 
     def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray, timings: dict,

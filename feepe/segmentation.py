@@ -30,6 +30,10 @@ DEPTH_CLIP = (-6.0, 4.5)  # depth's log-odds range: a pixel far behind the model
 DEPTH_RANGE_M = 3.0  # the background's depth spread: its likelihood is uniform over it
 LOCAL_PX = 20.0  # background colours are learned within this distance of the robot's outline
 EDGE_PX = 2.0  # and neither they nor the robot's this close to it
+GIVEN_LOGODDS = 2.0  # a handed-in mask's pull at full trust: below the outline prior's and the depth's clear
+# verdicts, so a segmenter's blob far off the predicted outline or a hole where the depth sees the robot stays
+# overruled; it decides where the estimator's own evidence is weak (the band, no depth, ambiguous colours)
+GIVEN_TRUST_IOU = (0.5, 0.9)  # its trust rises from 0 to 1 as its IoU with the estimator's own mask does
 
 
 @dataclass
@@ -114,13 +118,42 @@ def depth_logodds(depth: np.ndarray, view: ModelView, sigma_m: float) -> np.ndar
     return np.where((depth > 0) & (view.depth > 0), out, 0.0).astype(np.float32)
 
 
-def robot_probability(rgb: np.ndarray, depth: np.ndarray | None, view: ModelView, colour: ColourModel,
-                      band_px: float, sigma_m: float) -> np.ndarray:
-    """P(robot) per pixel: the outline prior, the colours and the depth, summed as log-odds."""
+def robot_logodds(rgb: np.ndarray, depth: np.ndarray | None, view: ModelView, colour: ColourModel,
+                  band_px: float, sigma_m: float) -> np.ndarray:
+    """log-odds of robot per pixel: the outline prior, the colours and the depth, summed."""
     prior = np.clip(view.inside / max(band_px, 0.5) * PRIOR_LOGODDS, PRIOR_FLOOR, PRIOR_LOGODDS)
     logodds = prior + colour.logodds(rgb)
     if depth is not None:
         logodds += depth_logodds(depth, view, sigma_m)
+    return logodds.astype(np.float32)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    union = np.count_nonzero(a | b)
+    return np.count_nonzero(a & b) / union if union else 0.0
+
+
+def trust(iou: float) -> float:
+    """How much a handed-in mask counts, from its IoU with the estimator's own mask of the same part."""
+    low, high = GIVEN_TRUST_IOU
+    return float(np.clip((iou - low) / (high - low), 0.0, 1.0))
+
+
+def given_logodds(own: np.ndarray, view: ModelView, robot_mask: np.ndarray | None,
+                  ee_mask: np.ndarray | None) -> np.ndarray:
+    """Handed-in masks as log-odds of robot, each weighed by `trust` in its agreement with the estimator's
+    own segmentation `own` (P > 0.5): a robot mask says robot inside and not robot outside; an end-effector
+    mask alone says robot inside and not robot where the model's nearest part is the end-effector."""
+    out = np.zeros(view.part.shape, np.float32)
+    if robot_mask is not None:
+        out += trust(_iou(robot_mask, own)) * GIVEN_LOGODDS * np.where(robot_mask, 1.0, -1.0)
+    elif ee_mask is not None:
+        near_ee = view.part == 0
+        out += trust(_iou(ee_mask, own & near_ee)) * GIVEN_LOGODDS * np.where(ee_mask, 1.0, -1.0 * near_ee)
+    return out
+
+
+def _probability(logodds: np.ndarray) -> np.ndarray:
     return (1.0 / (1.0 + np.exp(-logodds))).astype(np.float32)
 
 
@@ -135,15 +168,22 @@ class Segmentation:
     probability: np.ndarray  # (H, W) P(robot)
     robot: np.ndarray  # (H, W) bool: the robot's visible mask, P > 0.5
     ee: np.ndarray  # (H, W) bool: those of its pixels whose nearest model part is the end-effector
+    robot_mask: np.ndarray | None = None  # the masks handed in, if any: segmenting again weighs them again
+    ee_mask: np.ndarray | None = None
 
 
 def segment(parts, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
-            K: np.ndarray, colour: "ColourModel", band_px: float, sigma_m: float = 0.01) -> Segmentation:
+            K: np.ndarray, colour: "ColourModel", band_px: float, sigma_m: float = 0.01,
+            robot_mask: np.ndarray | None = None, ee_mask: np.ndarray | None = None) -> Segmentation:
     """`parts`: the robot's PartsSilhouette (the end-effector first), placed at T_cam_base by `T_base_parts`.
-    The depth's scale `sigma_m` holds a stereo camera's noise and a few millimetres of calibration error."""
+    The depth's scale `sigma_m` holds a stereo camera's noise and a few millimetres of calibration error.
+    `robot_mask` / `ee_mask`: masks handed in (a segmenter's), a prior weighed by their agreement."""
     T_cam_parts = np.einsum("ij,njk->nik", T_cam_base, T_base_parts)
     view = model_view(parts.part_depths(T_cam_parts, K, depth.shape))
-    probability = robot_probability(rgb, depth if (depth > 0).any() else None, view, colour, band_px, sigma_m)
+    logodds = robot_logodds(rgb, depth if (depth > 0).any() else None, view, colour, band_px, sigma_m)
+    if robot_mask is not None or ee_mask is not None:
+        logodds = logodds + given_logodds(logodds > 0, view, robot_mask, ee_mask)
+    probability = _probability(logodds)
     robot = probability > 0.5
     return Segmentation(rgb, depth, np.asarray(T_cam_base, float), view, probability, robot,
-                        robot & (view.part == 0))
+                        robot & (view.part == 0), robot_mask, ee_mask)

@@ -22,8 +22,8 @@ from eval.methods.base import Estimate, Observation
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import SingleFrameOptions
-from feepe.estimator import (REFINEMENTS, SILHOUETTES, VARIANTS, Estimator, FeepeOptions, RobotView, describe,
-                             load_models)
+from feepe.estimator import (GIVEN_MASKS, REFINEMENTS, SILHOUETTES, VARIANTS, Estimator, FeepeOptions, RobotView,
+                             describe, load_models)
 from feepe.onboarding import onboard
 from feepe.silhouette import SilhouetteModel
 from kernel.bop import SceneMeta
@@ -44,6 +44,9 @@ class FeepeFlags:
     silhouette: str = option("ee", "the outline --refine fits: the end-effector's mask (ee, the paper's input) or "
                              "the whole robot's (robot: every arm link by FK; needs robot_mask_visib/ in the data "
                              "set)", choices=SILHOUETTES)
+    given_masks: str = option("truth", "masks handed in: taken as they are (truth) or weighed against FEEPE's own "
+                              "segmentation of the robot, as one more signal of it (prior; fits the robot's outline; "
+                              "our extension)", choices=GIVEN_MASKS)
     refit_growth: float = option(0.0, "a new key frame refits the calibration only once the memory grew by this "
                                  "fraction since the last refit (0: each new key frame; our extension)")
     layer: int | None = option(None, "DINOv2 block, counted from 0 as FoundPose (paper: 19 of ViT-L's 0..23)",
@@ -64,6 +67,7 @@ class Feepe:
     def __init__(self, flags: FeepeFlags):
         self.opts = FeepeOptions(variant=flags.variant, k_f=flags.k_f, icp=flags.icp, refine=flags.refine,
                                  silhouette=flags.silhouette, silhouette_refit_growth=flags.refit_growth,
+                                 given_masks=flags.given_masks,
                                  single=SingleFrameOptions(k_r=flags.k_r))
         self.bow_assignment = flags.bow_assignment
         kwargs = {}
@@ -86,15 +90,18 @@ class Feepe:
             refine["silhouette"] = self.opts.silhouette
         if self.opts.silhouette_refit_growth:
             refine["refit_growth"] = self.opts.silhouette_refit_growth
+        if self.opts.given_masks != "truth":
+            refine["given_masks"] = self.opts.given_masks
         return {"variant": self.opts.variant, "icp": self.opts.icp, **refine, "backbone": self.backbone.name,
                 "layer": self.backbone.options().get("layer"), "n_templates": self.n_templates,
                 "k_r": self.opts.single.k_r, "k_f": self.opts.k_f, "bow_assignment": self.bow_assignment,
                 "estimator": describe(self.opts, self.backbone)}
 
     def given(self, masks: bool, depth: bool) -> None:
-        """With no mask given the estimator finds and segments the robot itself, so it fits the robot's
-        outline (the refinement on, `silhouette robot`: the arm's meshes from the URDF)."""
-        if not masks:
+        """With no mask given, or masks that are only a prior, the estimator finds and segments the robot
+        itself, so it fits the robot's outline (the refinement on, `silhouette robot`: the arm's meshes from
+        the URDF)."""
+        if not masks or self.opts.given_masks == "prior":
             self.opts = dataclasses.replace(self.opts, silhouette="robot",
                                             refine=self.opts.refine if self.opts.refine != "none" else "silhouette")
 
@@ -138,7 +145,7 @@ class Feepe:
     def estimate(self, obs: Observation) -> Estimate:
         robot = None
         if self._arm is not None:
-            if obs.robot_mask is None and obs.mask is not None:
+            if obs.robot_mask is None and obs.mask is not None and self.opts.given_masks == "truth":
                 raise UserError(f"frame {obs.im_id}: --silhouette robot needs its robot mask (robot_mask_visib/)")
             robot = robot_view(self._arm, obs.robot_mask, obs.joint_positions)
         r = self._current.step(obs.rgb, obs.depth, obs.mask, obs.K, obs.T_base_ee, robot)
