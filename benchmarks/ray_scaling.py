@@ -16,6 +16,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from kernel.bop import DATASET_INFO
+
 PORT = 6391
 RAY = str(Path(sys.executable).with_name("ray"))
 ENV = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "token"}  # as docs/syneepose.md says
@@ -49,7 +51,7 @@ def render(address: str, out: Path, robots: str, frames: int) -> float:
 
 
 def same_files(a: Path, b: Path) -> tuple[int, list[str]]:
-    names = sorted(str(p.relative_to(a)) for p in a.rglob("*") if p.is_file() and p.name != "dataset_info.json")
+    names = sorted(str(p.relative_to(a)) for p in a.rglob("*") if p.is_file() and p.name != DATASET_INFO)
     return len(names), [n for n in names if not filecmp.cmp(a / n, b / n, shallow=False)]
 
 

@@ -32,7 +32,7 @@ from eval.metrics import WORKSPACE_POINTS, add, adds, calibration_error, rotatio
 from eval.model_points import QUERY_RULE, QUERY_RULE_TEXT, EvalModel, load_eval_model
 from eval.records import FrameErrors, read_errors, write_errors
 from eval.summary import summarise
-from kernel.bop import complete_frames, image_path, object_mask_path
+from kernel.bop import DEPTH_DIR, MASK_VISIB_DIR, complete_frames, image_path, object_mask_path
 from kernel.cli import run_command
 from kernel.dataset import Dataset, Scene
 from kernel.errors import UserError
@@ -90,7 +90,8 @@ def observation(scene: Scene, im_id: int, depth_dir: str, noise: MaskNoise | Non
         robot = None if robot is None else perturb(robot, noise, rng)
     else:
         mask = frame.mask_visib
-    depth = (None if depth_dir == NO_DEPTH else frame.depth if depth_dir == "depth" else scene.depth(im_id, depth_dir))
+    depth = (None if depth_dir == NO_DEPTH else frame.depth if depth_dir == DEPTH_DIR
+             else scene.depth(im_id, depth_dir))
     obs = Observation(im_id=im_id, rgb=frame.rgb, depth=depth, mask=mask, K=frame.K,
                       joint_positions=frame.joint_positions, T_base_ee=frame.T_base_ee, robot_mask=robot)
     return obs, frame.T_cam_ee, truth
@@ -186,7 +187,7 @@ def own_masks_dir(out: Path, scene_id: int) -> Path:
 
 def write_own_masks(out: Path, scene_id: int, im_id: int, masks: dict) -> None:
     folder = own_masks_dir(out, scene_id)
-    for name, path in (("ee", object_mask_path(folder, "mask_visib", im_id)),
+    for name, path in (("ee", object_mask_path(folder, MASK_VISIB_DIR, im_id)),
                        ("robot", image_path(folder, "robot_mask", im_id))):
         if name in masks:
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -284,7 +285,7 @@ def _git_commit() -> str | None:
 
 
 def evaluate(method_name: str, options: dict, dataset: Path, out: Path, scenes: str | None = None,
-             robots: str | None = None, depth_dir: str = "depth", noise: MaskNoise | None = None,
+             robots: str | None = None, depth_dir: str = DEPTH_DIR, noise: MaskNoise | None = None,
              masks: str = "given") -> dict:
     """Runs (or resumes) the evaluation and returns the summary it wrote to <out>/summary.json."""
     if masks not in MASKS:
@@ -437,7 +438,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", required=True, help="result folder (resumed if it holds the same run)")
     parser.add_argument("--scenes", help="comma-separated scene ids (default: all)")
     parser.add_argument("--robots", help="comma-separated ARM+EE configurations (default: all)")
-    parser.add_argument("--depth-dir", default="depth", help="depth folder of each scene (e.g. depth_gt), or none: "
+    parser.add_argument("--depth-dir", default=DEPTH_DIR, help="depth folder of each scene (e.g. depth_gt), or none: "
                         "the method sees no depth (an RGB camera)")
     parser.add_argument("--masks", default="given", choices=MASKS, help="given (the data set's masks, default; "
                         "--mask-noise perturbs them) or none: the method gets no mask of any kind")

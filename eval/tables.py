@@ -20,6 +20,7 @@ from pathlib import Path
 from eval import reported
 from eval.plots import accuracy_curves, convergence_plot, read_trials, targeting_plot
 from eval.records import read_errors
+from kernel.bop import DEPTH_DIR
 from kernel.cli import output_dir, run_command
 from kernel.errors import UserError
 from kernel.files import read_json, write_atomic
@@ -90,7 +91,7 @@ def load_runs(folders: list[Path]) -> list[Run]:
                 method += f" {title}={run.options[key]}"
         data = s["dataset"]
         details = [v for v in (s.get("backbone"), data.get("preset") or Path(data["path"]).name) if v]
-        details += [f"{data['depth_dir']}/"] if data.get("depth_dir", "depth") != "depth" else []
+        details += [f"{data['depth_dir']}/"] if data.get("depth_dir", DEPTH_DIR) != DEPTH_DIR else []
         details += ["perturbed masks"] if data.get("mask_noise") else []
         run.label = f"{method} ({', '.join(details)})"
     repeated = Counter(run.label for run in runs)

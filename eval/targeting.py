@@ -34,8 +34,9 @@ from eval.metrics import WORKSPACE_POINTS, calibration_error
 from eval.run import NO_POSE, observation
 from eval.tables import method_label
 from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
+from kernel.bop import DEPTH_DIR
 from kernel.cli import output_dir, run_command
-from kernel.dataset import Dataset, Scene
+from kernel.dataset import TEMPLATES, Dataset, Scene
 from kernel.errors import UserError
 from kernel.files import write_atomic
 
@@ -117,7 +118,7 @@ def _observations(scene: Scene, depth_dir: str, noise: MaskNoise | None) -> dict
 
 
 def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: int = 0, hand_eye: str = "tsai",
-        feepe: dict | None = None, depth_dir: str = "depth", noise: MaskNoise | None = None) -> list[Trial]:
+        feepe: dict | None = None, depth_dir: str = DEPTH_DIR, noise: MaskNoise | None = None) -> list[Trial]:
     """`feepe`: the FEEPE method's options as `eval.run --method feepe` takes them (variant, icp, refine, ...)."""
     pairs = _pairs(Path(marker_root), Path(plain_root))
     _check(views, draws, seed, min(len(m.im_ids) for m, _ in pairs))
@@ -131,7 +132,7 @@ def run(marker_root: Path, plain_root: Path, views=VIEWS, draws: int = 3, seed: 
     for marker_scene, plain_scene in pairs:
         config, scene_id, ids = marker_scene.config, marker_scene.scene_id, marker_scene.im_ids
         T_cam_base = marker_scene.meta.T_cam_base
-        boards, frames = _observations(marker_scene, "depth", None), _observations(plain_scene, depth_dir, noise)
+        boards, frames = _observations(marker_scene, DEPTH_DIR, None), _observations(plain_scene, depth_dir, noise)
         for n in views:
             for draw in range(draws):
                 chosen = sorted(rng.choice(ids, n, replace=False).tolist())
@@ -186,8 +187,8 @@ def main(argv=None) -> int:
     parser.add_argument("--refine", default="none", help="FEEPE's refinement: none, silhouette or silhouette+depth")
     parser.add_argument("--silhouette", default="ee", help="the refinement's outline: ee or robot")
     parser.add_argument("--backbone", default=DEFAULT_BACKBONE)
-    parser.add_argument("--templates-dir", type=Path, help="FEEPE templates (default: PLAIN/templates)")
-    parser.add_argument("--depth-dir", default="depth", help="FEEPE's depth folder in PLAIN (e.g. depth_gt)")
+    parser.add_argument("--templates-dir", type=Path, help=f"FEEPE templates (default: PLAIN/{TEMPLATES})")
+    parser.add_argument("--depth-dir", default=DEPTH_DIR, help="FEEPE's depth folder in PLAIN (e.g. depth_gt)")
     parser.add_argument("--mask-noise", default="none", help="none or sam: FEEPE's masks perturbed as eval.run's")
     args = parser.parse_args(argv)
 

@@ -22,11 +22,10 @@ from feepe.crop import crop_around_mask
 from feepe.depth import backproject, depth_at
 from kernel.errors import UserError
 from kernel.files import write_atomic
-from kernel.template_set import INDEX, read_index, read_template
+from kernel.template_set import INDEX, image_paths, read_index, read_template
 from kernel.transforms import inv_T, transform_points
 
 CACHE_VERSION = 2  # 2: the BoW assignment is stored
-TEMPLATE_IMAGES = ("rgb", "depth", "mask")  # the folders read_template reads
 # the cache key holds every BoW option, defaults included, so changing a default misses the cache
 BOW_DEFAULTS = {n: p.default for n, p in inspect.signature(build_index).parameters.items() if p.default is not p.empty}
 
@@ -61,8 +60,8 @@ def _key(folder: Path, index: dict, backbone, pad: float, bow_options: dict) -> 
     few MB of PNGs costs little beside decoding them and running the backbone on a miss."""
     h = hashlib.sha256((folder / INDEX).read_bytes())
     for template_id in sorted(int(k) for k in index):
-        for kind in TEMPLATE_IMAGES:
-            h.update((folder / kind / f"{template_id:06d}.png").read_bytes())
+        for path in image_paths(folder, template_id).values():
+            h.update(path.read_bytes())
     spec = {"v": CACHE_VERSION, "backbone": backbone.options(), "pad": pad, "bow": {**BOW_DEFAULTS, **bow_options}}
     h.update(json.dumps(spec, sort_keys=True).encode())
     return h.hexdigest()[:20]

@@ -56,7 +56,14 @@ class SceneMeta:
     dropped_distractors: int = 0  # objects sampled for the scene but left out: no place away from the robot found
 
 
-EXTRAS = {"stereo": ("depth_gt",), "both": ("depth_gt", "ir_left", "ir_right")}
+# The split renders write: BOP methods (SAM-6D, FoundationPose, MegaPose) and bop_toolkit's eval scripts read
+# `test` + test_targets.
+SPLIT = "test"
+DATASET_INFO = "dataset_info.json"  # our record at the root of what rendered the data set
+# a scene's per-frame image folders, named as BOP names them (`frame_paths` keys their files by Frame's fields)
+RGB_DIR, DEPTH_DIR, MASK_DIR, MASK_VISIB_DIR = "rgb", "depth", "mask", "mask_visib"
+DEPTH_GT_DIR = "depth_gt"  # the exact depth beside a simulated sensor's in depth/
+EXTRAS = {"stereo": (DEPTH_GT_DIR,), "both": (DEPTH_GT_DIR, "ir_left", "ir_right")}
 LINK_IDS_DIR = "robot_mask_visib"  # our sidecar, not BOP: which robot part each pixel sees (uint8 PNG)
 
 
@@ -80,9 +87,9 @@ def frame_paths(scene_dir: Path, im_id: int, robot: dict | None = None) -> dict[
     exact depth (and the IR pair), a scene that names its robot parts adds their visible-mask image.
     `read_frame` reads every one of them."""
     robot = robot or {}
-    paths = {"rgb": image_path(scene_dir, "rgb", im_id), "depth": image_path(scene_dir, "depth", im_id),
-             "mask": object_mask_path(scene_dir, "mask", im_id),
-             "mask_visib": object_mask_path(scene_dir, "mask_visib", im_id)}
+    paths = {"rgb": image_path(scene_dir, RGB_DIR, im_id), "depth": image_path(scene_dir, DEPTH_DIR, im_id),
+             "mask": object_mask_path(scene_dir, MASK_DIR, im_id),
+             "mask_visib": object_mask_path(scene_dir, MASK_VISIB_DIR, im_id)}
     for extra in EXTRAS.get((robot.get("depth_sensor") or {}).get("mode"), ()):
         paths[extra] = image_path(scene_dir, extra, im_id)
     if robot.get("links"):
@@ -96,7 +103,7 @@ def _floats(a) -> list[float]:
 
 def read_dataset_info(root: Path) -> dict:
     """The data set's dataset_info.json ({} for a folder without one)."""
-    path = Path(root) / "dataset_info.json"
+    path = Path(root) / DATASET_INFO
     return read_json(path, "restore it, or render into another --out") if path.is_file() else {}
 
 
@@ -193,7 +200,7 @@ def _coco_record(im_id: int, obj_id: int, mask: np.ndarray, mask_visib: np.ndarr
     when either mask is empty. The annotation id is given when the scene is written out."""
     mask, mask_visib = np.asarray(mask, dtype=bool), np.asarray(mask_visib, dtype=bool)
     height, width = mask.shape
-    image = {"id": im_id, "file_name": f"rgb/{im_id:06d}.png", "width": width, "height": height}
+    image = {"id": im_id, "file_name": f"{RGB_DIR}/{im_id:06d}.png", "width": width, "height": height}
     if not mask.any() or not mask_visib.any():
         return {"image": image, "annotation": None}
     x, y, w, h = _bbox(mask)
@@ -363,7 +370,7 @@ def split_name(root: Path) -> str:
     folders without one) from before renders wrote the BOP `test` split."""
     split = read_dataset_info(root).get("split", "train")
     if not isinstance(split, str):
-        raise UserError(f"{Path(root) / 'dataset_info.json'}: split {split!r} is not a folder name")
+        raise UserError(f"{Path(root) / DATASET_INFO}: split {split!r} is not a folder name")
     return split
 
 

@@ -7,7 +7,8 @@
     <root>/<split>/<scene_id:06d>/   BOP scenes with our robot sidecar (kernel/bop.py)
 
 Readers and writers of the files themselves are plain functions in kernel/bop.py, kernel/template_set.py and
-kernel/files.py; this object only knows the layout, so no other module spells a folder name.
+kernel/files.py; this object only knows the layout. The names are spelt here and in kernel/bop.py (the split, the
+root record, a scene's folders), so no module outside kernel/ spells a folder or file name of the data set.
 """
 
 from __future__ import annotations
@@ -18,13 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from kernel.bop import (Frame, SceneMeta, frame_paths, image_path, read_dataset_info, read_frame, read_gt_poses,
-                        read_scene, record_paths, scene_dirs, split_name)
+from kernel.bop import (DEPTH_DIR, Frame, SceneMeta, frame_paths, image_path, read_dataset_info, read_frame,
+                        read_gt_poses, read_scene, record_paths, scene_dirs, split_name)
 from kernel.errors import UserError
 from kernel.files import read_json, read_png
 
 MODELS, MODELS_EVAL, TEMPLATES = "models", "models_eval", "templates"
 MODELS_INFO = "models_info.json"  # in models/ and models_eval/
+MODELS_NAMES = "models_names.json"  # in models/: obj_id -> end-effector name (ours, not BOP)
 
 
 def model_name(obj_id: int) -> str:
@@ -52,9 +54,9 @@ class Scene:
     @cached_property
     def cameras(self) -> dict:
         """scene_camera.json by frame id (as text, as BOP keys it)."""
-        return read_json(self.path / "scene_camera.json")
+        return read_json(record_paths(self.path)["scene_camera"])
 
-    def inputs(self, depth_folder: str | None = "depth") -> tuple[dict[str, Path], dict[str, Path]]:
+    def inputs(self, depth_folder: str | None = DEPTH_DIR) -> tuple[dict[str, Path], dict[str, Path]]:
         """Every file reading this scene's frames opens (`read_scene`, `frame`, `depth(.., depth_folder)`;
         None: no other depth): its JSON records, then each frame's images, both by their path relative to the
         scene folder. A result computed from the scene is fingerprinted by exactly these."""
@@ -68,7 +70,7 @@ class Scene:
         records = {p.name: p for p in record_paths(self.path).values() if p.is_file()}
         return records, images
 
-    def depth(self, im_id: int, folder: str = "depth") -> np.ndarray:
+    def depth(self, im_id: int, folder: str = DEPTH_DIR) -> np.ndarray:
         """A frame's depth in metres from `folder` (`depth`, or another sensor's beside it, e.g. `depth_gt`)."""
         path = image_path(self.path, folder, im_id)
         if not path.is_file():

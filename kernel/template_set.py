@@ -13,11 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from kernel.bop import DEPTH_SCALE
+from kernel.bop import DEPTH_DIR, DEPTH_SCALE, MASK_DIR, RGB_DIR, image_path
+from kernel.dataset import TEMPLATES
 from kernel.errors import UserError
 from kernel.files import read_json, read_png, write_atomic, write_png
 
 INDEX = "templates.json"
+IMAGES = (RGB_DIR, DEPTH_DIR, MASK_DIR)  # a template's image folders, named as a scene's
 
 
 @dataclass
@@ -33,7 +35,13 @@ class Template:
 
 
 def set_dir(root: Path, ee: str, n_views: int, n_inplane: int, resolution: int) -> Path:
-    return Path(root) / "templates" / f"{ee}_{n_views}x{n_inplane}_{resolution}px"
+    return Path(root) / TEMPLATES / f"{ee}_{n_views}x{n_inplane}_{resolution}px"
+
+
+def image_paths(folder: Path, template_id: int) -> dict[str, Path]:
+    """A template's images by folder (`<folder>/rgb/<id:06d>.png`, ...): what `read_template` reads, the writer
+    writes and FEEPE's onboarding hashes for its cache."""
+    return {kind: image_path(folder, kind, template_id) for kind in IMAGES}
 
 
 _SET = re.compile(r"^(?P<ee>.+)_(?P<views>\d+)x(?P<inplane>\d+)_(?P<res>\d+)px$")
@@ -86,12 +94,11 @@ def read_template(folder: Path, template_id: int, index: dict | None = None) -> 
     rec = index.get(str(template_id))
     if rec is None:
         raise UserError(f"{folder}: no template {template_id}")
-    name = f"{template_id:06d}.png"
-    rgb = read_png(Path(folder) / "rgb" / name)[..., ::-1]
+    paths = image_paths(folder, template_id)
+    rgb = read_png(paths[RGB_DIR])[..., ::-1]
     return Template(template_id, rec["view"], rec["inplane"], np.array(rec["cam_K"]).reshape(3, 3),
                     np.array(rec["T_cam_model"]), np.ascontiguousarray(rgb),
-                    read_png(Path(folder) / "depth" / name) * (rec["depth_scale"] / 1000.0),
-                    read_png(Path(folder) / "mask" / name) > 127)
+                    read_png(paths[DEPTH_DIR]) * (rec["depth_scale"] / 1000.0), read_png(paths[MASK_DIR]) > 127)
 
 
 class TemplateSetWriter:
@@ -103,7 +110,7 @@ class TemplateSetWriter:
     def __init__(self, folder: Path, obj_id: int, samples: int, inplane_by: str):
         self.folder, self.obj_id, self.samples, self.inplane_by = Path(folder), obj_id, samples, inplane_by
         self.index = read_index(self.folder) if (self.folder / INDEX).is_file() else {}
-        for sub in ("rgb", "depth", "mask"):
+        for sub in IMAGES:
             (self.folder / sub).mkdir(parents=True, exist_ok=True)
 
     def done(self, template_id: int) -> bool:
@@ -111,11 +118,10 @@ class TemplateSetWriter:
 
     def write(self, templates: list[Template]) -> None:
         for template in templates:  # the index file is written after all of the batch's images
-            name = f"{template.id:06d}.png"
-            write_png(self.folder / "rgb" / name, np.ascontiguousarray(template.rgb[..., ::-1]))
-            write_png(self.folder / "depth" / name,
-                      np.round(template.depth * 1000.0 / DEPTH_SCALE).astype(np.uint16))
-            write_png(self.folder / "mask" / name, template.mask.astype(np.uint8) * 255)
+            paths = image_paths(self.folder, template.id)
+            write_png(paths[RGB_DIR], np.ascontiguousarray(template.rgb[..., ::-1]))
+            write_png(paths[DEPTH_DIR], np.round(template.depth * 1000.0 / DEPTH_SCALE).astype(np.uint16))
+            write_png(paths[MASK_DIR], template.mask.astype(np.uint8) * 255)
             self.index[str(template.id)] = {
                 "view": template.view, "inplane": template.inplane, "cam_K": template.K.ravel().tolist(),
                 "T_cam_model": template.T_cam_model.tolist(), "depth_scale": DEPTH_SCALE, "obj_id": self.obj_id,

@@ -94,8 +94,9 @@ def _render_seconds(pixels: int, samples: int) -> float:
 
 
 def _plan_render(args) -> Phase:
+    from kernel.bop import SPLIT
     from syneepose import paths, resume
-    from syneepose.jobs import (SPLIT, SceneContent, SegmentSelection, frames_done, legacy_preset_digests,
+    from syneepose.jobs import (SceneContent, SegmentSelection, frames_done, legacy_preset_digests,
                                 make_jobs, parse_shard, run_job, write_dataset_info, write_root_files)
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
@@ -230,6 +231,7 @@ def _writable(out: Path) -> None:
 
 
 def _plan_templates(args) -> Phase:
+    from kernel.dataset import Dataset
     from kernel.template_set import check_recipe
     from syneepose import paths
     from syneepose.jobs import TemplateJob, run_template_job, templates_done
@@ -253,7 +255,7 @@ def _plan_templates(args) -> Phase:
     per_render = _render_seconds(settings.resolution**2, settings.samples)
     return Phase("templates", "template", run_template_job, jobs, done_before,
                  per_render / settings.inplane if args.inplane_by == "rotated" else per_render, lambda: None,
-                 f"templates: {len(jobs)} end-effectors in {out / 'templates'}")
+                 f"templates: {len(jobs)} end-effectors in {Dataset(out).templates_dir}")
 
 
 def _templates(args) -> None:

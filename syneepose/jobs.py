@@ -28,8 +28,6 @@ from syneepose.preset import Preset, load_preset
 from syneepose.robots.catalog import load_catalog
 from syneepose.scene.spec import RenderSettings
 
-# BOP methods (SAM-6D, FoundationPose, MegaPose) and bop_toolkit's eval scripts read `test` + test_targets.
-SPLIT = "test"
 NAME = "syneepose"  # the BOP data set name of result files: METHOD_syneepose-test.csv
 
 
@@ -74,7 +72,7 @@ class Job:
 
     @property
     def scene_dir(self) -> Path:
-        """In the split that dataset_info.json (written before any job runs) names, not this process's SPLIT."""
+        """In the split that dataset_info.json (written before any job runs) names, not this process's bop.SPLIT."""
         return Dataset(Path(self.out)).scene_dir(self.scene_id)
 
 
@@ -233,9 +231,9 @@ def write_dataset_info(out: Path, plan: Plan, assets: Path) -> None:
     """`plan.settings` (job_settings): what every scene of the data set was rendered with (resume.check_resume)."""
     info = bop.read_dataset_info(out)
     content, render, depth = plan.content, plan.render, plan.render.depth
-    if info.get("split", SPLIT) != SPLIT and info.get("configurations"):
+    if info.get("split", bop.SPLIT) != bop.SPLIT and info.get("configurations"):
         raise UserError(f"{out} holds a data set in {info['split']}/ (dataset_info.json), renders now write "
-                        f"{SPLIT}/; render into another --out (a data set never mixes splits)")
+                        f"{bop.SPLIT}/; render into another --out (a data set never mixes splits)")
     if info.get("depth", "exact") != depth and info.get("configurations"):
         raise UserError(f"{out} was rendered with --depth {info.get('depth', 'exact')}, not {depth}; render into "
                         "another folder (a data set never mixes depth kinds)")
@@ -243,9 +241,9 @@ def write_dataset_info(out: Path, plan: Plan, assets: Path) -> None:
         "name": NAME, "preset": content.preset_name, "seed": content.seed, "frames_per_segment": content.preset.frames,
         "resolution": [render.width, render.height], "samples": render.samples,
         "configurations": sorted(set(info.get("configurations", [])) | set(plan.selection.configs)),
-        "split": SPLIT, "depth_scale": bop.DEPTH_SCALE, "depth": depth,
-        "depth_dirs": {"depth": "exact" if depth == "exact" else "stereo sensor",
-                       **({"depth_gt": "exact"} if depth != "exact" else {})},
+        "split": bop.SPLIT, "depth_scale": bop.DEPTH_SCALE, "depth": depth,
+        "depth_dirs": {bop.DEPTH_DIR: "exact" if depth == "exact" else "stereo sensor",
+                       **({bop.DEPTH_GT_DIR: "exact"} if depth != "exact" else {})},
         "versions": {"syneepose": __version__, "bpy": version("bpy")}, "settings": plan.settings,
         "scenes": {str(sid): {"config": key.config, "segment": key.segment} for sid, key in plan.scenes.items()},
     })
@@ -253,10 +251,10 @@ def write_dataset_info(out: Path, plan: Plan, assets: Path) -> None:
         from syneepose.stereo import load_profile
 
         info["sensor"] = load_profile(render.sensor).source
-    write_json(out / "dataset_info.json", info)
+    write_json(out / bop.DATASET_INFO, info)
     # models_eval/ (BOP's resampled evaluation models) is optional until the assets build makes it.
     for name, source in ((MODELS, paths.models_dir(assets)), (MODELS_EVAL, paths.models_eval_dir(assets))):
-        if not (out / name).is_dir() and (name == "models" or source.is_dir()):
+        if not (out / name).is_dir() and (name == MODELS or source.is_dir()):
             staging = out / f".{name}.tmp{os.getpid()}"
             try:
                 shutil.copytree(source, staging, ignore=shutil.ignore_patterns(".*"))

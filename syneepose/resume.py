@@ -37,7 +37,7 @@ def _has_files(scene_dir: Path) -> bool:
 
 
 def _scene_settings(scene_dir: Path, fallback: dict | None) -> dict | None:
-    robot = scene_dir / "scene_robot.json"
+    robot = bop.record_paths(scene_dir)["scene_robot"]
     if robot.is_file():
         record = files.read_json(robot)
         if isinstance(record.get("settings"), dict):

@@ -75,9 +75,9 @@ def number(out: Path, keys: list[Key], segments: int) -> tuple[dict[int, Key], i
     configurations = load_catalog().configurations
     folders = bop.scene_dirs(bop.split_dir(out))  # before the record: a concurrent shard records, then makes folders
     info = bop.read_dataset_info(out)
-    s = _recorded_segments(info, out / "dataset_info.json")
+    s = _recorded_segments(info, out / bop.DATASET_INFO)
     if "scenes" in info:
-        recorded = _recorded(info["scenes"], out / "dataset_info.json")
+        recorded = _recorded(info["scenes"], out / bop.DATASET_INFO)
     else:
         recorded, s = _first_plan(out, folders, s, configurations)
     s = s or segments
@@ -136,7 +136,7 @@ def _first_plan(out: Path, folders: dict[int, Path], segments: int | None,
     recorded (`segments` from dataset_info.json, else a scene's settings) or the only S that fits them all."""
     found = {}
     for sid, folder in folders.items():
-        path = folder / "scene_robot.json"
+        path = bop.record_paths(folder)["scene_robot"]
         if path.is_file():
             record = files.read_json(path)
             found[sid] = _config(path, record, configurations)

@@ -182,7 +182,7 @@ def test_dataset_info_names_the_test_split_and_copies_models_eval_when_built(tmp
     out.mkdir()
     jobs.write_dataset_info(out, _plan(out), assets)
     info = _load(out / "dataset_info.json")
-    assert (info["name"], info["split"]) == ("syneepose", "test") and jobs.SPLIT == "test"
+    assert (info["name"], info["split"]) == ("syneepose", "test") and bop.SPLIT == "test"
     assert (out / "models" / "obj_000001.ply").is_file() and not (out / "models_eval").exists()
     assert _plan(out).jobs[0].scene_dir == out / "test" / "000000"
     (assets / "models_eval").mkdir()

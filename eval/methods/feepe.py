@@ -27,7 +27,7 @@ from feepe.estimator import (GIVEN_MASKS, REFINEMENTS, SILHOUETTES, VARIANTS, Es
 from feepe.onboarding import onboard
 from feepe.silhouette import SilhouetteModel
 from kernel.bop import SceneMeta
-from kernel.dataset import Dataset
+from kernel.dataset import TEMPLATES, Dataset
 from kernel.errors import UserError
 from kernel.template_set import find_template_set
 
@@ -55,7 +55,7 @@ class FeepeFlags:
     k_r: int = option(5, "reference templates per frame (paper: 5)", within=(1, 10000))
     k_f: int = option(8, "key frames (paper: 8)", within=(0, 10000))
     backbone_weights: str | None = option(None, "DINOv2 weights (HF folder or torch-hub .pth)")
-    templates_dir: str | None = option(None, "template root (default: DATASET/templates)")
+    templates_dir: str | None = option(None, f"template root (default: DATASET/{TEMPLATES})")
     bow_assignment: str = option("foundpose", "BoW word assignment: foundpose (FoundPose's) or gaussian (ours: "
                                  "distance-weighted votes)", choices=("foundpose", "gaussian"))
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import trimesh
 from filelock import FileLock
 
-from kernel.dataset import MODELS_INFO
+from kernel.dataset import MODELS_INFO, MODELS_NAMES, model_name
 from kernel.errors import UserError
 from syneepose import paths
 from syneepose.robots import ee_models
@@ -173,11 +173,11 @@ def _build(catalog: Catalog, configs: list[str], pairs: list, out: Path, force: 
             infos = {}
             for ee in ees:
                 mesh = ee_models.orient_outward(ee_models.load_ee_mesh(ee, paths.part_urdf(ee.name, out)))
-                ee_models.write_ply_mm(mesh, tmp / f"obj_{ee.obj_id:06d}.ply")
+                ee_models.write_ply_mm(mesh, tmp / model_name(ee.obj_id))
                 infos[str(ee.obj_id)] = ee_models.model_info(mesh, ee)
                 report.models.append(ee.name)
             ee_models.write_json(infos, tmp / MODELS_INFO)
-            ee_models.write_json({str(e.obj_id): e.name for e in ees}, tmp / "models_names.json")
+            ee_models.write_json({str(e.obj_id): e.name for e in ees}, tmp / MODELS_NAMES)
             (tmp / STAMP).write_text(json.dumps({"recipe": recipe}))
             _swap_in(tmp, models)
         finally:

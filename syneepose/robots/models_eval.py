@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from kernel.dataset import MODELS_INFO, model_name
 from kernel.errors import UserError
 from syneepose.robots.catalog import EndEffector
 from syneepose.robots.ee_models import model_info, write_json, write_ply_mm
@@ -40,14 +41,14 @@ def eval_mesh(vertices_mm: np.ndarray, faces: np.ndarray) -> trimesh.Trimesh:
 
 def build_models_eval(models: Path, ees: list[EndEffector], out: Path) -> dict[str, int]:
     """Remesh `models/obj_*.ply` into `out` (in a spawned process: bpy holds global state); vertex counts."""
-    sources = [trimesh.load(Path(models) / f"obj_{ee.obj_id:06d}.ply", process=False) for ee in ees]
+    sources = [trimesh.load(Path(models) / model_name(ee.obj_id), process=False) for ee in ees]
     with ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn")) as pool:
         remeshed = pool.submit(_remesh_all, [(m.vertices, m.faces) for m in sources]).result()
     infos, counts = {}, {}
     for ee, (verts, faces) in zip(ees, remeshed):
         mesh = eval_mesh(verts, faces)
-        write_ply_mm(mesh, Path(out) / f"obj_{ee.obj_id:06d}.ply")
+        write_ply_mm(mesh, Path(out) / model_name(ee.obj_id))
         infos[str(ee.obj_id)] = model_info(mesh, ee)
         counts[ee.name] = len(mesh.vertices)
-    write_json(infos, Path(out) / "models_info.json")
+    write_json(infos, Path(out) / MODELS_INFO)
     return counts
