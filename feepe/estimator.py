@@ -26,7 +26,7 @@ from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
 from feepe.registration import depth_fit, register
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
-from feepe.segmentation import ColourModel, Segmentation, segment
+from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, segment
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
                               mean_iou, placed)
 from feepe.symmetry import consensus
@@ -232,6 +232,7 @@ class Estimator:
         self.colour = ColourModel()  # no mask given: the robot's and the background's colours, learned online
         self._hypotheses: list[list] = []  # no mask given: [T_cam_base, summed depth score] from the registrations
         self._band_px = BAND_START_PX
+        self._depth_sigma = MIN_DEPTH_SIGMA_M  # no mask given: the segmentation's depth scale, measured per frame
 
     def step(self, rgb: np.ndarray, depth: np.ndarray | None, mask: np.ndarray | None, K: np.ndarray,
              T_base_ee: np.ndarray, robot: RobotView | None = None) -> FrameResult:
@@ -306,7 +307,7 @@ class Estimator:
                 return FrameResult(None, None, 0.0, 0, 0, timings)
             t0 = time.perf_counter()
             seen = segment(self.parts.coarse, T, T_base_parts, rgb, depth, K, self.colour, self._band_px,
-                           robot_mask=robot_mask, ee_mask=ee_mask)
+                           self._depth_sigma, robot_mask=robot_mask, ee_mask=ee_mask)
             timings["segmentation"] = 1e3 * (time.perf_counter() - t0)
             self._refresh_key_frames(T)
         found = frame_candidates(rgb, depth, seen.ee, K, self.bank, self.backbone, self.opts.single)
@@ -329,8 +330,9 @@ class Estimator:
                                                                            placed(T_new, T_base_parts), K),
                                           BAND_MIN_PX, BAND_START_PX))
             seen = segment(self.parts.coarse, T_new, T_base_parts, rgb, depth, K, self.colour, BAND_MIN_PX,
-                           robot_mask=robot_mask, ee_mask=ee_mask)
+                           self._depth_sigma, robot_mask=robot_mask, ee_mask=ee_mask)
             self.colour.learn(rgb, seen)
+            self._depth_sigma = depth_sigma(seen)
             found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
             timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
             accepted = self.T_cam_base is not None or _explains_depth(self.parts, T_new, T_base_parts, depth, K)
@@ -371,7 +373,7 @@ class Estimator:
             K = entry.found.silhouette.K
             if self.parts.motion_px(placed(seen.T_cam_base, entry.found.parts), placed(T, entry.found.parts), K) > 1.0:
                 again = segment(self.parts.coarse, T, entry.found.parts, seen.rgb, seen.depth, K, self.colour,
-                                BAND_MIN_PX, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask)
+                                BAND_MIN_PX, self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask)
                 entry.found.segmentation, entry.found.silhouette = again, mask_view(again.robot, K, seen.depth)
 
     def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray, timings: dict,

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from feepe.optimize import robust_sigma
+
 BINS = 16  # colour histogram levels per RGB channel (16^3 bins), as RBOT's 32^3 on a smaller image
 PRIOR_LOGODDS = 4.0  # the ramp's log-odds at the band's edges (P = 0.98 inside, 0.02 outside). Inside it stays
 # there, so depth that clearly contradicts the model (DEPTH_CLIP) outweighs it: an occluder deep inside the outline;
@@ -30,6 +32,14 @@ DEPTH_CLIP = (-6.0, 4.5)  # depth's log-odds range: a pixel far behind the model
 DEPTH_RANGE_M = 3.0  # the background's depth spread: its likelihood is uniform over it
 LOCAL_PX = 20.0  # background colours are learned within this distance of the robot's outline
 EDGE_PX = 2.0  # and neither they nor the robot's this close to it
+DEPTH_STEP_M = 0.05  # neighbouring depths this far apart: a depth edge (the robot's outline against what is behind)
+DEPTH_EDGE_PX = 3  # a stereo camera's depth says nothing this close to a depth edge: it spreads the nearer
+# surface's depth across the edge (foreground fattening: block matching's window straddles it), so there it would
+# paint the background next to the robot as robot; colour and the outline prior decide those pixels
+MIN_DEPTH_SIGMA_M = 0.01  # the depth term's scale at least: a few millimetres of calibration error and exact depth
+STEREO_SIGMA_M = 0.015  # a measured depth spread above this is a stereo camera's, whose edges are fattened; exact
+# depth's edges are the sharpest cue there is (mini scene 7, 8 frames with no mask: 0.2-0.6 mm with them, 1.0-3.5
+# mm without)
 GIVEN_LOGODDS = 2.0  # a handed-in mask's pull at full trust: below the outline prior's and the depth's clear
 # verdicts, so a segmenter's blob far off the predicted outline or a hole where the depth sees the robot stays
 # overruled; it decides where the estimator's own evidence is weak (the band, no depth, ambiguous colours)
@@ -111,11 +121,26 @@ class ColourModel:
 
 def depth_logodds(depth: np.ndarray, view: ModelView, sigma_m: float) -> np.ndarray:
     """Per pixel: the observed depth against the model's next to it, robot (Gaussian of the difference)
-    against background (uniform over DEPTH_RANGE_M); 0 where the sensor has no depth or no model is near."""
+    against background (uniform over DEPTH_RANGE_M); 0 where the sensor has no depth or no model is near, and
+    for a stereo camera's spread (`sigma_m` above STEREO_SIGMA_M) near depth edges."""
     d = np.asarray(depth, float) - view.depth
     out = np.log(DEPTH_RANGE_M / (sigma_m * np.sqrt(2 * np.pi))) - 0.5 * (d / sigma_m) ** 2
     out = np.clip(out, *DEPTH_CLIP)
-    return np.where((depth > 0) & (view.depth > 0), out, 0.0).astype(np.float32)
+    said = (depth > 0) & (view.depth > 0)
+    if sigma_m > STEREO_SIGMA_M:
+        said &= ~depth_edges(depth)
+    return np.where(said, out, 0.0).astype(np.float32)
+
+
+def depth_edges(depth: np.ndarray) -> np.ndarray:
+    """Pixels within DEPTH_EDGE_PX of a depth step of DEPTH_STEP_M (holes do not count as steps)."""
+    z = np.asarray(depth, np.float32)
+    near = np.where(z > 0, z, np.float32(1e6))
+    far = np.where(z > 0, z, np.float32(0.0))
+    kernel = np.ones((3, 3), np.uint8)
+    step = (cv2.dilate(far, kernel) - cv2.erode(near, kernel)) > DEPTH_STEP_M
+    size = 2 * DEPTH_EDGE_PX + 1
+    return cv2.dilate(step.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
 
 
 def robot_logodds(rgb: np.ndarray, depth: np.ndarray | None, view: ModelView, colour: ColourModel,
@@ -157,6 +182,17 @@ def _probability(logodds: np.ndarray) -> np.ndarray:
     return (1.0 / (1.0 + np.exp(-logodds))).astype(np.float32)
 
 
+def depth_sigma(seen: "Segmentation") -> float:
+    """The depth term's scale for the next frames, measured on this one: the robust spread (1.4826 MAD) of the
+    sensor's depth about the model's over the confident robot pixels, at least MIN_DEPTH_SIGMA_M. A stereo
+    camera's depth spreads centimetres about a robot at a metre (D435 model: 5-95 % within -28..+34 mm on
+    mini-stereo at the true calibration); a fixed 1 cm would read a tenth of the robot as background."""
+    on = seen.robot & (seen.view.inside >= EDGE_PX) & (seen.depth > 0) & (seen.view.depth > 0)
+    if np.count_nonzero(on) < 50:
+        return MIN_DEPTH_SIGMA_M
+    return max(MIN_DEPTH_SIGMA_M, robust_sigma(seen.depth[on] - seen.view.depth[on]))
+
+
 @dataclass
 class Segmentation:
     """One frame as the estimator segmented it at a calibration, and what it needs to do so again once the
@@ -173,7 +209,7 @@ class Segmentation:
 
 
 def segment(parts, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
-            K: np.ndarray, colour: "ColourModel", band_px: float, sigma_m: float = 0.01,
+            K: np.ndarray, colour: "ColourModel", band_px: float, sigma_m: float = MIN_DEPTH_SIGMA_M,
             robot_mask: np.ndarray | None = None, ee_mask: np.ndarray | None = None) -> Segmentation:
     """`parts`: the robot's PartsSilhouette (the end-effector first), placed at T_cam_base by `T_base_parts`.
     The depth's scale `sigma_m` holds a stereo camera's noise and a few millimetres of calibration error.

@@ -189,3 +189,38 @@ def test_with_no_mask_a_frame_without_the_robot_is_no_estimate(tiny_dataset):
     r = est.step(np.full_like(f.rgb, 128), wall, None, f.K, f.T_base_ee,
                  RobotView(None, np.stack([T_base_link[n] for n in links])))
     assert r.T_cam_base is None and r.T_cam_ee is None and r.masks is None
+
+
+def test_a_stereo_cameras_depth_is_not_read_at_its_edges_nor_at_a_fixed_scale():
+    """Depth steps (not holes) mark the pixels within DEPTH_EDGE_PX; a stereo camera's spread (measured, above
+    STEREO_SIGMA_M) silences depth there, exact depth's does not; the spread is measured on the robot's
+    confident pixels."""
+    from feepe.segmentation import (DEPTH_EDGE_PX, STEREO_SIGMA_M, ModelView, Segmentation, depth_edges,
+                                    depth_logodds, depth_sigma)
+
+    depth = np.full((40, 60), 2.0)
+    depth[:, 30:] = 1.0  # a step at column 30
+    depth[5:8, 5:8] = 0.0  # a hole: no step
+    edges = depth_edges(depth)
+    assert edges[:, 29 - DEPTH_EDGE_PX:31 + DEPTH_EDGE_PX].all() and not edges[:, :29 - DEPTH_EDGE_PX - 1].any()
+    assert not edges[:, 31 + DEPTH_EDGE_PX + 1:].any()
+    view = ModelView(np.zeros(depth.shape, int), np.full(depth.shape, 1.0), np.full(depth.shape, 5.0, np.float32))
+    sharp, spread = depth_logodds(depth, view, 0.01), depth_logodds(depth, view, 2 * STEREO_SIGMA_M)
+    assert (sharp[:, 30] > 0).all() and (spread[:, 30] == 0).all() and (spread[:, 50] > 0).all()
+
+    rng = np.random.default_rng(0)
+    noisy = 1.0 + rng.normal(0, 0.02, depth.shape)
+    robot = np.ones(depth.shape, bool)
+    seen = Segmentation(None, noisy, np.eye(4), view, np.ones(depth.shape), robot, robot)
+    assert depth_sigma(seen) == pytest.approx(0.02, rel=0.1)
+
+
+def test_a_depth_fit_forgives_a_few_centimetres_behind_but_not_free_space():
+    from feepe.registration import SEEN_THROUGH_M
+
+    rendered = np.full((10, 10), 1.0)
+    depth = rendered.copy()
+    depth[:2] += 0.02 + SEEN_THROUGH_M / 2  # past the tolerance, as a stereo camera's thin parts
+    depth[2:4] += 0.5  # free space behind the model
+    fit = depth_fit(rendered, depth)
+    assert (fit.agree, fit.seen_through, fit.drawn) == (60, 20, 100)
