@@ -65,8 +65,11 @@ class Feepe:
     Options = FeepeFlags
 
     def __init__(self, flags: FeepeFlags):
-        self.opts = FeepeOptions(variant=flags.variant, k_f=flags.k_f, icp=flags.icp, refine=flags.refine,
-                                 silhouette=flags.silhouette, silhouette_refit_growth=flags.refit_growth,
+        own = flags.given_masks == "prior"  # its own segmentation: the robot's outline, the refinement on
+        self.opts = FeepeOptions(variant=flags.variant, k_f=flags.k_f, icp=flags.icp,
+                                 refine="silhouette" if own and flags.refine == "none" else flags.refine,
+                                 silhouette="robot" if own else flags.silhouette,
+                                 silhouette_refit_growth=flags.refit_growth,
                                  given_masks=flags.given_masks,
                                  single=SingleFrameOptions(k_r=flags.k_r))
         self.bow_assignment = flags.bow_assignment
@@ -98,10 +101,10 @@ class Feepe:
                 "estimator": describe(self.opts, self.backbone)}
 
     def given(self, masks: bool, depth: bool) -> None:
-        """With no mask given, or masks that are only a prior, the estimator finds and segments the robot
-        itself, so it fits the robot's outline (the refinement on, `silhouette robot`: the arm's meshes from
-        the URDF)."""
-        if not masks or self.opts.given_masks == "prior":
+        """With no mask given the estimator finds and segments the robot itself, so it fits the robot's
+        outline (the refinement on, `silhouette robot`: the arm's meshes from the URDF), as with
+        `--given-masks prior`."""
+        if not masks:
             self.opts = dataclasses.replace(self.opts, silhouette="robot",
                                             refine=self.opts.refine if self.opts.refine != "none" else "silhouette")
 
