@@ -517,3 +517,12 @@ def test_masks_none_hands_in_no_mask_and_scores_the_masks_the_method_made(tiny_d
         assert run.main([*argv, "--dataset", str(tiny_dataset), "--out", str(tmp_path / "refused")]) == 2
         assert words in _one_error_line(capsys.readouterr().err)
     assert not (tmp_path / "refused").exists()
+
+
+def test_given_masks_as_a_prior_take_the_robots_outline_and_are_part_of_the_runs_identity():
+    from eval.methods.feepe import Feepe, FeepeFlags
+
+    prior, truth = Feepe(FeepeFlags(given_masks="prior")), Feepe(FeepeFlags())
+    assert (prior.opts.silhouette, prior.opts.refine, prior.opts.given_masks) == ("robot", "silhouette", "prior")
+    assert prior.options()["given_masks"] == "prior" and prior.options()["estimator"]["given_masks"] == "prior"
+    assert "given_masks" not in truth.options() and "given_masks" not in truth.options()["estimator"]
