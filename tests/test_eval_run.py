@@ -526,3 +526,13 @@ def test_given_masks_as_a_prior_take_the_robots_outline_and_are_part_of_the_runs
     assert (prior.opts.silhouette, prior.opts.refine, prior.opts.given_masks) == ("robot", "silhouette", "prior")
     assert prior.options()["given_masks"] == "prior" and prior.options()["estimator"]["given_masks"] == "prior"
     assert "given_masks" not in truth.options() and "given_masks" not in truth.options()["estimator"]
+    prior.given(masks=True, depth=True)
+    truth.given(masks=True, depth=True)
+    assert prior.opts.refine == "silhouette+depth" and (truth.opts.refine, truth.opts.silhouette) == ("none", "ee")
+    for depth, refine in ((True, "silhouette+depth"), (False, "silhouette")):  # no mask: depth where there is depth
+        none = Feepe(FeepeFlags())
+        none.given(masks=False, depth=depth)
+        assert (none.opts.silhouette, none.opts.refine) == ("robot", refine)
+    chosen = Feepe(FeepeFlags(refine="silhouette"))
+    chosen.given(masks=False, depth=True)
+    assert chosen.opts.refine == "silhouette"
