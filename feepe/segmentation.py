@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from feepe.optimize import robust_sigma
+from feepe.silhouette import iou
 
 BINS = 16  # colour histogram levels per RGB channel (16^3 bins), as RBOT's 32^3 on a smaller image
 PRIOR_LOGODDS = 4.0  # the ramp's log-odds at the band's edges (P = 0.98 inside, 0.02 outside). Inside it stays
@@ -153,11 +154,6 @@ def robot_logodds(rgb: np.ndarray, depth: np.ndarray | None, view: ModelView, co
     return logodds.astype(np.float32)
 
 
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    union = np.count_nonzero(a | b)
-    return np.count_nonzero(a & b) / union if union else 0.0
-
-
 def trust(iou: float) -> float:
     """How much a handed-in mask counts, from its IoU with the estimator's own mask of the same part."""
     low, high = GIVEN_TRUST_IOU
@@ -171,10 +167,10 @@ def given_logodds(own: np.ndarray, view: ModelView, robot_mask: np.ndarray | Non
     mask alone says robot inside and not robot where the model's nearest part is the end-effector."""
     out = np.zeros(view.part.shape, np.float32)
     if robot_mask is not None:
-        out += trust(_iou(robot_mask, own)) * GIVEN_LOGODDS * np.where(robot_mask, 1.0, -1.0)
+        out += trust(iou(robot_mask, own)) * GIVEN_LOGODDS * np.where(robot_mask, 1.0, -1.0)
     elif ee_mask is not None:
         near_ee = view.part == 0
-        out += trust(_iou(ee_mask, own & near_ee)) * GIVEN_LOGODDS * np.where(ee_mask, 1.0, -1.0 * near_ee)
+        out += trust(iou(ee_mask, own & near_ee)) * GIVEN_LOGODDS * np.where(ee_mask, 1.0, -1.0 * near_ee)
     return out
 
 

@@ -14,20 +14,12 @@ from feepe.robot_starts import RobotSamples
 from feepe.segmentation import ColourModel, segment, trust
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, iou
 from kernel.transforms import inv_T, make_T, rotation_angle
+from tests.test_feepe_robot_starts import _arm
 
 K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
 SHAPE = (240, 320)
 # the camera 1.4 m from the arm, looking at it from the front and above
 T_CAM_BASE = inv_T(make_T(Rotation.from_euler("xyz", [-2.2, 0.0, 0.4]).as_matrix(), [0.6, -1.2, 0.9]))
-
-
-def _arm() -> list[trimesh.Trimesh]:
-    """A small hand first (the end-effector), then a column, an upper arm and a forearm bent two ways."""
-    column = trimesh.creation.box([0.12, 0.12, 0.5], make_T(t=[0.0, 0.0, 0.25]))
-    upper = trimesh.creation.box([0.4, 0.08, 0.08], make_T(t=[0.2, 0.0, 0.5]))
-    fore = trimesh.creation.box([0.06, 0.3, 0.06], make_T(t=[0.4, 0.15, 0.5]))
-    hand = trimesh.creation.box([0.05, 0.05, 0.1], make_T(t=[0.4, 0.3, 0.45]))
-    return [hand, column, upper, fore]
 
 
 def _scene(occluder: bool = False, seed: int = 0):
