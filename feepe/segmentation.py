@@ -38,9 +38,11 @@ DEPTH_EDGE_PX = 3  # a stereo camera's depth says nothing this close to a depth 
 # surface's depth across the edge (foreground fattening: block matching's window straddles it), so there it would
 # paint the background next to the robot as robot; colour and the outline prior decide those pixels
 MIN_DEPTH_SIGMA_M = 0.01  # the depth term's scale at least: a few millimetres of calibration error and exact depth
-STEREO_SIGMA_M = 0.015  # a measured depth spread above this is a stereo camera's, whose edges are fattened; exact
-# depth's edges are the sharpest cue there is (mini scene 7, 8 frames with no mask: 0.2-0.6 mm with them, 1.0-3.5
-# mm without)
+NOISY_PER_M = 5e-4  # a depth image rougher than this (`depth_noise`, m at 1 m) is a sensor's, whose edges are
+# fattened; exact depth's edges are the sharpest cue there is (mini scene 7, 8 frames with no mask: 0.2-0.6 mm with
+# them, 1.0-3.5 mm without). Measured on mini-stereo's first frames: exact depth 0, the D435 model 4.8-8.7e-3.
+# (Before: the depth's spread about the model above 15 mm; a stereo camera's is 14-19 mm, so its edges were read
+# in every other frame.)
 GIVEN_LOGODDS = 2.0  # a handed-in mask's pull at full trust: below the outline prior's and the depth's clear
 # verdicts, so a segmenter's blob far off the predicted outline or a hole where the depth sees the robot stays
 # overruled; it decides where the estimator's own evidence is weak (the band, no depth, ambiguous colours)
@@ -120,15 +122,27 @@ class ColourModel:
         return np.clip(ratio[self.bins(rgb)], -COLOUR_CLIP, COLOUR_CLIP)
 
 
+def depth_noise(depth: np.ndarray) -> float:
+    """How rough the depth image is: the robust spread of each depth's difference from its 5 x 5 median,
+    divided by depth squared (a stereo camera's error grows so), in metres at 1 m. Rendered exact depth is
+    smooth (0); a sensor's is not."""
+    z = np.asarray(depth, np.float32)
+    median = cv2.medianBlur(z, 5)
+    valid = (z > 0) & (median > 0)
+    if np.count_nonzero(valid) < 50:
+        return 0.0
+    return robust_sigma((z[valid] - median[valid]) / z[valid] ** 2)
+
+
 def depth_logodds(depth: np.ndarray, view: ModelView, sigma_m: float) -> np.ndarray:
     """Per pixel: the observed depth against the model's next to it, robot (Gaussian of the difference)
     against background (uniform over DEPTH_RANGE_M); 0 where the sensor has no depth or no model is near, and
-    for a stereo camera's spread (`sigma_m` above STEREO_SIGMA_M) near depth edges."""
+    near depth edges for a sensor's rough depth (`depth_noise` above NOISY_PER_M)."""
     d = np.asarray(depth, float) - view.depth
     out = np.log(DEPTH_RANGE_M / (sigma_m * np.sqrt(2 * np.pi))) - 0.5 * (d / sigma_m) ** 2
     out = np.clip(out, *DEPTH_CLIP)
     said = (depth > 0) & (view.depth > 0)
-    if sigma_m > STEREO_SIGMA_M:
+    if depth_noise(depth) > NOISY_PER_M:
         said &= ~depth_edges(depth)
     return np.where(said, out, 0.0).astype(np.float32)
 

@@ -184,11 +184,11 @@ def test_with_no_mask_a_frame_without_the_robot_is_no_estimate(tiny_dataset):
 
 
 def test_a_stereo_cameras_depth_is_not_read_at_its_edges_nor_at_a_fixed_scale():
-    """Depth steps (not holes) mark the pixels within DEPTH_EDGE_PX; a stereo camera's spread (measured, above
-    STEREO_SIGMA_M) silences depth there, exact depth's does not; the spread is measured on the robot's
-    confident pixels."""
-    from feepe.segmentation import (DEPTH_EDGE_PX, STEREO_SIGMA_M, ModelView, Segmentation, depth_edges,
-                                    depth_logodds, depth_sigma)
+    """Depth steps (not holes) mark the pixels within DEPTH_EDGE_PX; a sensor's rough depth (`depth_noise`
+    above NOISY_PER_M) is silenced there, exact depth is not, whatever the depth term's scale; that scale is
+    measured on the robot's confident pixels."""
+    from feepe.segmentation import (DEPTH_EDGE_PX, NOISY_PER_M, ModelView, Segmentation, depth_edges,
+                                    depth_logodds, depth_noise, depth_sigma)
 
     depth = np.full((40, 60), 2.0)
     depth[:, 30:] = 1.0  # a step at column 30
@@ -197,10 +197,13 @@ def test_a_stereo_cameras_depth_is_not_read_at_its_edges_nor_at_a_fixed_scale():
     assert edges[:, 29 - DEPTH_EDGE_PX:31 + DEPTH_EDGE_PX].all() and not edges[:, :29 - DEPTH_EDGE_PX - 1].any()
     assert not edges[:, 31 + DEPTH_EDGE_PX + 1:].any()
     view = ModelView(np.zeros(depth.shape, int), np.full(depth.shape, 1.0), np.full(depth.shape, 5.0, np.float32))
-    sharp, spread = depth_logodds(depth, view, 0.01), depth_logodds(depth, view, 2 * STEREO_SIGMA_M)
-    assert (sharp[:, 30] > 0).all() and (spread[:, 30] == 0).all() and (spread[:, 50] > 0).all()
-
     rng = np.random.default_rng(0)
+    rough = depth + rng.normal(0, 0.002, depth.shape) * depth**2
+    assert depth_noise(depth) == 0.0 and depth_noise(rough) > NOISY_PER_M
+    for sigma in (0.01, 0.03):
+        sharp, spread = depth_logodds(depth, view, sigma), depth_logodds(rough, view, sigma)
+        assert (sharp[:, 30] > 0).all() and (spread[:, 30] == 0).all() and (spread[:, 50] > 0).all()
+
     noisy = 1.0 + rng.normal(0, 0.02, depth.shape)
     robot = np.ones(depth.shape, bool)
     seen = Segmentation(None, noisy, np.eye(4), view, np.ones(depth.shape), robot, robot)
