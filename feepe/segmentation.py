@@ -148,12 +148,13 @@ def depth_logodds(depth: np.ndarray, view: ModelView, sigma_m: float) -> np.ndar
 
 
 def depth_edges(depth: np.ndarray) -> np.ndarray:
-    """Pixels within DEPTH_EDGE_PX of a depth step of DEPTH_STEP_M (holes do not count as steps)."""
+    """Pixels within DEPTH_EDGE_PX of a depth step of DEPTH_STEP_M, a hole's rim counted as one: a stereo
+    camera loses the background beside a nearer surface (the other camera's view of it is blocked) and
+    spreads the nearer depth over the rim it keeps (mini-stereo scene 7 at the true calibration: with holes not
+    counted, 2 % of the robot's area in a ring one pixel outside it read as robot by depth)."""
     z = np.asarray(depth, np.float32)
-    near = np.where(z > 0, z, np.float32(1e6))
-    far = np.where(z > 0, z, np.float32(0.0))
     kernel = np.ones((3, 3), np.uint8)
-    step = (cv2.dilate(far, kernel) - cv2.erode(near, kernel)) > DEPTH_STEP_M
+    step = (cv2.dilate(z, kernel) - cv2.erode(z, kernel)) > DEPTH_STEP_M
     size = 2 * DEPTH_EDGE_PX + 1
     return cv2.dilate(step.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
 

@@ -184,7 +184,7 @@ def test_with_no_mask_a_frame_without_the_robot_is_no_estimate(tiny_dataset):
 
 
 def test_a_stereo_cameras_depth_is_not_read_at_its_edges_nor_at_a_fixed_scale():
-    """Depth steps (not holes) mark the pixels within DEPTH_EDGE_PX; a sensor's rough depth (`depth_noise`
+    """Depth steps and holes' rims mark the pixels within DEPTH_EDGE_PX; a sensor's rough depth (`depth_noise`
     above NOISY_PER_M) is silenced there, exact depth is not, whatever the depth term's scale; that scale is
     measured on the robot's confident pixels."""
     from feepe.segmentation import (DEPTH_EDGE_PX, NOISY_PER_M, ModelView, Segmentation, depth_edges,
@@ -192,10 +192,11 @@ def test_a_stereo_cameras_depth_is_not_read_at_its_edges_nor_at_a_fixed_scale():
 
     depth = np.full((40, 60), 2.0)
     depth[:, 30:] = 1.0  # a step at column 30
-    depth[5:8, 5:8] = 0.0  # a hole: no step
+    depth[5:8, 5:8] = 0.0  # a hole: its rim is a step (a stereo camera's occlusion)
     edges = depth_edges(depth)
-    assert edges[:, 29 - DEPTH_EDGE_PX:31 + DEPTH_EDGE_PX].all() and not edges[:, :29 - DEPTH_EDGE_PX - 1].any()
+    assert edges[:, 29 - DEPTH_EDGE_PX:31 + DEPTH_EDGE_PX].all() and not edges[20:, :29 - DEPTH_EDGE_PX - 1].any()
     assert not edges[:, 31 + DEPTH_EDGE_PX + 1:].any()
+    assert edges[4:9, 4:9].all() and edges[8 + DEPTH_EDGE_PX, 5] and not edges[9 + DEPTH_EDGE_PX, 5]
     view = ModelView(np.zeros(depth.shape, int), np.full(depth.shape, 1.0), np.full(depth.shape, 5.0, np.float32))
     rng = np.random.default_rng(0)
     rough = depth + rng.normal(0, 0.002, depth.shape) * depth**2
