@@ -14,6 +14,7 @@ import numpy as np
 
 from feepe.crop import Crop, crop_around_mask
 from feepe.depth import backproject, depth_at
+from feepe.icp import SurfaceModel
 from feepe.matching import best_buddies
 from feepe.onboarding import TemplateBank
 from feepe.pnp import solve_pnp
@@ -43,6 +44,8 @@ class FrameCandidates:
     n_features: int
     timings: dict = field(default_factory=dict)  # ms per stage
     cloud: np.ndarray | None = None  # (N, 3) masked depth points, camera frame (depth alignment only)
+    surface: SurfaceModel | None = None  # what the cloud shows, placed in the base frame (no mask given: the
+    # robot at this frame's joint states); None: the end-effector's model, at the frame's T_base_ee
     silhouette: MaskView | None = None  # the frame's mask as a distance field (silhouette refinement only)
     parts: np.ndarray | None = None  # (n, 4, 4) T_base of the parts that mask shows: the end-effector (, the arm links)
     robot_starts: list = field(default_factory=list)  # T_cam_base starts from the robot's depth (first frames)

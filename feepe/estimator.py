@@ -317,8 +317,9 @@ class Estimator:
         found.segmentation, found.parts = seen, T_base_parts
         found.silhouette = mask_view(seen.robot, K, depth)
         found.robot_starts = [h[0] for h in self._hypotheses]
-        if self.opts.needs_surface:
-            found.cloud = observed_cloud(depth, seen.ee, K)
+        if self.opts.needs_surface:  # the depth of what the outline fits: the whole robot
+            found.cloud, found.surface = observed_cloud(depth, seen.robot, K), SurfaceModel(
+                *self._robot_samples.placed(T_base_parts))
         if self.opts.silhouette_position_starts:
             self.centres.add(T_base_ee, observed_centre(depth, seen.ee, K))
         t0 = time.perf_counter()
@@ -334,6 +335,8 @@ class Estimator:
             self.colour.learn(rgb, seen)
             self._depth_sigma = depth_sigma(seen)
             found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
+            if found.surface is not None:
+                found.cloud = observed_cloud(depth, seen.robot, K)
             timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
             accepted = self.T_cam_base is not None or _explains_depth(self.parts, T_new, T_base_parts, depth, K)
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found), need_candidates=False)
@@ -375,6 +378,8 @@ class Estimator:
                 again = segment(self.parts.coarse, T, entry.found.parts, seen.rgb, seen.depth, K, self.colour,
                                 BAND_MIN_PX, self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask)
                 entry.found.segmentation, entry.found.silhouette = again, mask_view(again.robot, K, seen.depth)
+                if entry.found.surface is not None:
+                    entry.found.cloud = observed_cloud(seen.depth, again.robot, K)
 
     def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray, timings: dict,
                   prior: np.ndarray | None = None):
@@ -413,11 +418,18 @@ class Estimator:
         t0 = time.perf_counter()
         k = opts.silhouette_key_frames if opts.variant in ("C", "D") else 0  # its own key frames, not D's
         fitted = self._with_key_frames(T_base_ee, found, k)
-        clouds = [(T_b, f.cloud) for T_b, f in fitted] if opts.depth_in_refinement else []
+        clouds, models = self._depth_frames(fitted) if opts.depth_in_refinement else ([], self.model)
         starts = self._starts(T, T_base_ee, found)
-        T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in fitted], clouds)
+        T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in fitted], clouds, models)
         timings["refinement"] = 1e3 * (time.perf_counter() - t0)
         return T
+
+    def _depth_frames(self, fitted: list) -> tuple[list, SurfaceModel | list[SurfaceModel]]:
+        """The frames' depth points, each (T_base_model, cloud), and what they show: the end-effector's model,
+        or each frame's own (`FrameCandidates.surface`, already in the base frame)."""
+        if all(f.surface is None for _, f in fitted):
+            return [(T_b, f.cloud) for T_b, f in fitted], self.model
+        return [(np.eye(4), f.cloud) for _, f in fitted], [f.surface for _, f in fitted]
 
     def _with_key_frames(self, T_base_ee: np.ndarray, found: FrameCandidates, k: int) -> list:
         """The current frame, then k key frames of the memory: (T_base_ee, FrameCandidates) each."""
@@ -453,7 +465,7 @@ class Estimator:
         pivot_base = transform_points(T_base_parts[0], self.silhouette.centre[None])[0]
         return robot_starts(model_base, observed_points(depth, robot_mask, K), pivot_base, pivot_cam)
 
-    def _refine_silhouette(self, starts: list[np.ndarray], frames: list, clouds: list) -> np.ndarray:
+    def _refine_silhouette(self, starts: list[np.ndarray], frames: list, clouds: list, models) -> np.ndarray:
         """Online: with no new key frame since the last refinement (or fewer than `silhouette_refit_growth`
         of the memory's size then) and a current mask that the last calibration explains as well as it
         explained the key frames, it stands. Else it is refined at the
@@ -472,7 +484,7 @@ class Estimator:
                                                                   self._fitted[0] * (1 + opts.silhouette_refit_growth)):
                 if fit(self.T_cam_base, current) >= self._fitted[1] - opts.silhouette_switch_iou:
                     return self.T_cam_base  # the memory grew too little, and the current mask agrees as they did
-            warm = self._descend(self.T_cam_base, frames, sigmas[-1:], clouds)
+            warm = self._descend(self.T_cam_base, frames, sigmas[-1:], clouds, models)
             # what another start must beat; an IoU exceeds neither 1 nor its bound, so few starts need a render
             bar = fit(warm, current) + opts.silhouette_switch_iou
             T_base_parts, mv = current[0]
@@ -481,12 +493,12 @@ class Estimator:
                 self._fitted = (len(self.pool), fit(warm, frames))
                 return warm
         scored = sorted(((fit(T, frames), i) for i, T in enumerate(starts)), reverse=True)
-        descended = ([warm] if warm is not None else []) + [self._descend(starts[i], frames, sigmas, clouds)
+        descended = ([warm] if warm is not None else []) + [self._descend(starts[i], frames, sigmas, clouds, models)
                                                            for _, i in scored[:opts.silhouette_starts]]
         ious = [fit(T, frames) for T in descended]
         scores = ious
         if clouds:  # depth judges too: the IoU times the depth's agreement, all at the best IoU's noise scale
-            distances = [depth_distances(T, clouds, self.model, opts.depth_sigma_m, opts.depth_sigma_z2)
+            distances = [depth_distances(T, clouds, models, opts.depth_sigma_m, opts.depth_sigma_z2)
                          for T in descended]
             scale = robust_scale(distances[int(np.argmax(ious))])
             scores = [iou * (a if np.isfinite(a) else 1.0)
@@ -495,20 +507,20 @@ class Estimator:
         self._fitted = (len(self.pool), ious[best])
         return descended[best]
 
-    def _descend(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:
+    def _descend(self, T: np.ndarray, frames: list, sigmas, clouds: list, models) -> np.ndarray:
         """Gauss-Newton on the contour term (and depth), the contour re-extracted between solves (as ICP
         re-associates). Depth may move the pose only within the masks' own uncertainty: when the result's
         mean contour distance exceeds the masks-only pose's by more than `silhouette_depth_tolerance`
         standard errors, a biased sensor is pulling it off the masks, and the masks-only pose is returned."""
-        T = self._solve(T, frames, sigmas, clouds)
+        T = self._solve(T, frames, sigmas, clouds, models)
         if clouds:
-            T_masks = self._solve(T, frames, sigmas[-1:], [])
+            T_masks = self._solve(T, frames, sigmas[-1:], [], models)
             (with_depth, _), (masks, error) = (contour_fit(self.parts, X, frames) for X in (T, T_masks))
             if with_depth > masks + self.opts.silhouette_depth_tolerance * error:
                 return T_masks
         return T
 
-    def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list) -> np.ndarray:
+    def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list, models) -> np.ndarray:
         no_matches = stack([])
         opts = self.opts
         inner = OptimizeOptions(max_iterations=SOLVE_ITERATIONS, min_decrease=MIN_DECREASE, min_step=MIN_STEP)
@@ -523,7 +535,7 @@ class Estimator:
                 terms = [contour_term(model, T, frames, floor, step_px=max(1.0, sigma / 2),
                                       measured=bool(clouds) or finest)]
                 if clouds:
-                    planes = associate(T, clouds, self.model, opts.icp_gate_m)
+                    planes = associate(T, clouds, models, opts.icp_gate_m)
                     terms.append(sensor_plane_term(planes, T, opts.depth_sigma_m, opts.depth_sigma_z2))
                 T_new, _ = optimize(T, no_matches, inner, terms=terms)
                 moved = np.linalg.norm(T_new[:3, 3] - T[:3, 3])

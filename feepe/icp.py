@@ -60,32 +60,38 @@ class PlaneTerms:
     target_cam: np.ndarray  # (N, 3) the observed depth points, camera frame
 
 
-def _nearest(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel,
-             gate_m: float = np.inf) -> tuple[list, np.ndarray, np.ndarray]:
-    """The frames with depth points, and each point's distance to its nearest model point and that point's
-    index (inf and len(model.points) beyond `gate_m`), all frames in one KD-tree query."""
-    frames = [(T_base_ee, cloud) for T_base_ee, cloud in frames if len(cloud)]
+def _nearest(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel | list[SurfaceModel],
+             gate_m: float = np.inf) -> tuple[list, list, np.ndarray, np.ndarray]:
+    """The frames with depth points and their models, and each point's distance to its nearest model point
+    and that point's index (inf and len(model.points) beyond `gate_m`). One model: all frames in one
+    KD-tree query; a list (one per frame, e.g. the robot placed by each frame's joint states): one each."""
+    models = model if isinstance(model, list) else [model] * len(frames)
+    kept = [(f, m) for f, m in zip(frames, models) if len(f[1])]
+    frames, models = [f for f, _ in kept], [m for _, m in kept]
     if not frames:
-        return [], np.zeros(0), np.zeros(0, int)
+        return [], [], np.zeros(0), np.zeros(0, int)
     in_model = [transform_points(inv_T(T_cam_base @ T_base_ee), cloud) for T_base_ee, cloud in frames]
-    dist, idx = model.tree.query(np.concatenate(in_model), distance_upper_bound=gate_m)
-    return frames, dist, idx
+    if not isinstance(model, list):
+        dist, idx = model.tree.query(np.concatenate(in_model), distance_upper_bound=gate_m)
+        return frames, models, dist, idx
+    found = [m.tree.query(P, distance_upper_bound=gate_m) for m, P in zip(models, in_model)]
+    return frames, models, np.concatenate([d for d, _ in found]), np.concatenate([i for _, i in found])
 
 
-def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel,
+def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel | list[SurfaceModel],
               gate_m: float) -> PlaneTerms:
     """frames: (T_base_ee, observed cloud) each; each observed point pairs with its nearest model point
-    within `gate_m`."""
-    frames, dist, idx = _nearest(T_cam_base, frames, model, gate_m)
+    within `gate_m` (`model`: one for all frames, or one per frame)."""
+    frames, models, dist, idx = _nearest(T_cam_base, frames, model, gate_m)
     if not frames:
         return PlaneTerms(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
     ends = np.cumsum([len(cloud) for _, cloud in frames])
     base, normals, target = [], [], []
-    for (T_base_ee, cloud), end in zip(frames, ends):
+    for (T_base_ee, cloud), m, end in zip(frames, models, ends):
         ok = np.isfinite(dist[end - len(cloud):end])
         nearest = idx[end - len(cloud):end][ok]
-        base.append(transform_points(T_base_ee, model.points[nearest]))
-        normals.append(model.normals[nearest] @ T_base_ee[:3, :3].T)
+        base.append(transform_points(T_base_ee, m.points[nearest]))
+        normals.append(m.normals[nearest] @ T_base_ee[:3, :3].T)
         target.append(cloud[ok])
     return PlaneTerms(np.concatenate(base), np.concatenate(normals), np.concatenate(target))
 
@@ -136,11 +142,11 @@ def sensor_plane_term(planes: PlaneTerms, T_cam_base: np.ndarray, sigma_0: float
     return term
 
 
-def depth_distances(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel,
+def depth_distances(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel | list[SurfaceModel],
                     sigma_0: float, k_z2: float) -> np.ndarray:
     """The key frames' depth points' distances to the nearest model point, each over the sensor model
     sigma(z) = sigma_0 + k_z2 z^2 of `sensor_plane_term`."""
-    frames, dist, _ = _nearest(T_cam_base, frames, model)
+    frames, _, dist, _ = _nearest(T_cam_base, frames, model)
     if not frames:
         return np.zeros(0)
     return dist / (sigma_0 + k_z2 * np.concatenate([cloud[:, 2] for _, cloud in frames]) ** 2)

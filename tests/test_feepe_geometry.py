@@ -8,7 +8,8 @@ from scipy.spatial.transform import Rotation
 from feepe.candidates import Candidate
 from feepe.crop import crop_around_mask
 from feepe.depth import normal_map
-from feepe.icp import PlaneTerm, PlaneTerms, SurfaceModel, depth_agreement, depth_distances, robust_scale
+from feepe.icp import (PlaneTerm, PlaneTerms, SurfaceModel, associate, depth_agreement, depth_distances,
+                       robust_scale)
 from feepe.matching import best_buddies
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.optimize import OptimizeOptions, _step, optimize, robust_sigma, stack
@@ -164,6 +165,29 @@ def test_depth_agreement_tells_the_right_calibration_from_a_turned_one():
     assert depth_agreement(off, 0.25) < depth_agreement(off, 1.0) < depth_agreement(off, 4.0)
     empty = depth_distances(T_cam_base, [(T_base_ee[0], np.zeros((0, 3)))], model, 0.002, 0.0036)
     assert len(empty) == 0 and np.isnan(depth_agreement(empty, 1.0)) and robust_scale(empty) == 1.0
+
+
+def test_each_frame_may_bring_its_own_model_placed_in_the_base_frame():
+    """With no mask the depth term matches each frame's cloud to the robot placed by that frame's joint
+    states: a list of models, one per frame, already in the base frame. It pairs and measures exactly as one
+    shared model at each frame's pose does; a frame without points is skipped with its model."""
+    mesh = trimesh.creation.box([0.08, 0.03, 0.05])
+    points, faces = trimesh.sample.sample_surface_even(mesh, 2000, seed=0)
+    model = SurfaceModel(np.asarray(points), mesh.face_normals[faces])
+    T_cam_base = make_T(Rotation.from_euler("xyz", [2.5, 0.2, -0.4]).as_matrix(), [0.05, -0.02, 0.9])
+    T_base = [make_T(Rotation.from_euler("xyz", a).as_matrix(), t)
+              for a, t in (([0, 0, 0], [0.3, 0, 0.4]), ([0.3, -0.5, 1.0], [0.35, 0.1, 0.35]), ([0, 0, 0], [0, 0, 0]))]
+    seen = trimesh.sample.sample_surface_even(mesh, 300, seed=1)[0]
+    clouds = [transform_points(T_cam_base @ T, seen) for T in T_base[:2]] + [np.zeros((0, 3))]
+    placed_models = [SurfaceModel(transform_points(T, model.points), model.normals @ T[:3, :3].T) for T in T_base]
+    T_off = make_T(np.eye(3), [0.004, -0.002, 0.003]) @ T_cam_base
+    shared = associate(T_off, list(zip(T_base, clouds)), model, 0.02)
+    own = associate(T_off, [(np.eye(4), c) for c in clouds], placed_models, 0.02)
+    for a, b in ((shared.base_points, own.base_points), (shared.base_normals, own.base_normals),
+                 (shared.target_cam, own.target_cam)):
+        assert len(a) > 500 and np.allclose(a, b, atol=1e-9)
+    assert np.allclose(depth_distances(T_off, list(zip(T_base, clouds)), model, 0.002, 0.0036),
+                       depth_distances(T_off, [(np.eye(4), c) for c in clouds], placed_models, 0.002, 0.0036))
 
 
 def test_robust_sigma_is_the_scaled_median_absolute_residual():
