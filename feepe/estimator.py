@@ -46,6 +46,10 @@ BAND_PER_PX = 3.0  # the next frame's band: this many times how far (px) the las
 MAX_HYPOTHESES = 5  # no mask given: the registrations' hypotheses kept and judged as frames arrive
 ACCEPT_AGREE = 0.5  # no mask given: a first calibration needs this share of the robot's depth pixels to agree
 ACCEPT_SEEN_THROUGH = 0.15  # and no more than this share seen through
+OWN_MASKS_MIN_SIGMA_PX = 2.0  # no mask given: the outline's scale beside depth at least this. Our own masks err by a
+# bias of about a pixel (never averaged away over frames, as a segmenter's noise is), so the robot's depth
+# decides what the outline cannot (six seed-0 stereo segments, --masks none, AUC@1cm ADD / calibration after 15
+# frames: 0.25 px (silhouette_min_sigma_px) 84.27 / 1.45 mm, 1 px 87.92 / 1.45 mm, 2 px 89.36 / 1.37 mm)
 ROBOT_DEPTH_POINTS = 12000  # no mask given: the robot's depth points per frame in the refinement (on mini's 320 x
 # 240 images about every pixel of its eroded mask). Its outline fixes the robot across the image and its distance
 # only through its size, which our segmentation's sub-pixel bias shifts by millimetres; the depth weighs with its
@@ -238,6 +242,7 @@ class Estimator:
         self._hypotheses: list[list] = []  # no mask given: [T_cam_base, summed depth score] from the registrations
         self._band_px = BAND_START_PX
         self._depth_sigma = MIN_DEPTH_SIGMA_M  # no mask given: the segmentation's depth scale, measured per frame
+        self._own_masks = False  # whether the refinement fits the estimator's own masks (no mask, or masks as a prior)
 
     def step(self, rgb: np.ndarray, depth: np.ndarray | None, mask: np.ndarray | None, K: np.ndarray,
              T_base_ee: np.ndarray, robot: RobotView | None = None) -> FrameResult:
@@ -250,7 +255,8 @@ class Estimator:
         depth = np.zeros(np.shape(rgb)[:2]) if depth is None else depth
         _check_inputs(rgb, depth, mask, K, T_base_ee)
         t_start = time.perf_counter()
-        if mask is None or self.opts.given_masks == "prior":
+        self._own_masks = mask is None or self.opts.given_masks == "prior"
+        if self._own_masks:
             return self._step_unmasked(rgb, np.asarray(depth, float), np.asarray(K, float),
                                        np.asarray(T_base_ee, float), robot, t_start,
                                        None if mask is None else np.asarray(mask, bool))
@@ -534,7 +540,9 @@ class Estimator:
             # a segmenter's few-pixel errors then yield the range to depth and to the better masks, exact masks
             # keep it (beside depth at the finest stage down to min_sigma)
             finest = k == len(sigmas) - 1
-            floor = opts.silhouette_min_sigma_px if clouds and finest else sigma
+            floor = sigma
+            if clouds and finest:
+                floor = max(opts.silhouette_min_sigma_px, OWN_MASKS_MIN_SIGMA_PX if self._own_masks else 0.0)
             for _ in range(opts.silhouette_rounds):
                 model = self.parts if finest else self.parts.coarse  # exact at the finest stage
                 terms = [contour_term(model, T, frames, floor, step_px=max(1.0, sigma / 2),
