@@ -306,10 +306,12 @@ class Estimator:
         robot_mask = robot.mask
         T_base_parts = np.concatenate([T_base_ee[None], robot.T_base_links])
         timings: dict = {}
+        surface = None  # the robot's surface samples placed by this frame's joint states, built once when needed
         with _BLAS.limit(limits=1, user_api="blas"):
             if self.T_cam_base is None or self.frame < self.opts.robot_start_frames:
                 t0 = time.perf_counter()
-                self._judge_hypotheses(T_base_parts, depth, K)
+                surface = SurfaceModel(*self._robot_samples.placed(T_base_parts))
+                self._judge_hypotheses(surface, T_base_parts, depth, K)
                 timings["registration"] = 1e3 * (time.perf_counter() - t0)
             T = self.T_cam_base if self.T_cam_base is not None else (self._hypotheses[0][0] if self._hypotheses else None)
             if T is None:
@@ -329,8 +331,9 @@ class Estimator:
         found.silhouette = mask_view(seen.robot, K, depth)
         found.robot_starts = [h[0] for h in self._hypotheses]
         if self.opts.needs_surface:  # the depth of what the outline fits: the whole robot
-            found.cloud, found.surface = observed_cloud(depth, seen.robot, K, ROBOT_DEPTH_POINTS), SurfaceModel(
-                *self._robot_samples.placed(T_base_parts))
+            if surface is None:
+                surface = SurfaceModel(*self._robot_samples.placed(T_base_parts))
+            found.cloud, found.surface = _robot_cloud(depth, seen, K), surface
         if self.opts.silhouette_position_starts:
             self.centres.add(T_base_ee, observed_centre(depth, seen.ee, K))
         t0 = time.perf_counter()
@@ -347,7 +350,7 @@ class Estimator:
             self._depth_sigma = depth_sigma(seen)
             found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
             if found.surface is not None:
-                found.cloud = observed_cloud(depth, seen.robot, K, ROBOT_DEPTH_POINTS)
+                found.cloud = _robot_cloud(depth, seen, K)
             timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
             accepted = self.T_cam_base is not None or _explains_depth(self.parts, T_new, T_base_parts, depth, K)
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found), need_candidates=False)
@@ -359,10 +362,11 @@ class Estimator:
         return FrameResult(T_new @ T_base_ee, T_new, score, len(found.candidates), n_keys, timings,
                            masks={"ee": seen.ee, "robot": seen.robot})
 
-    def _judge_hypotheses(self, T_base_parts: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
+    def _judge_hypotheses(self, model: SurfaceModel, T_base_parts: np.ndarray, depth: np.ndarray,
+                          K: np.ndarray) -> None:
         """The robot found again in this frame's depth (feepe/registration.py); every hypothesis so far and
-        the new ones scored by their depth agreement on this frame, summed over the frames seen."""
-        model = SurfaceModel(*self._robot_samples.placed(T_base_parts))
+        the new ones scored by their depth agreement on this frame, summed over the frames seen. `model`: the
+        robot's surface samples placed by this frame's joint states (base frame)."""
         known = [h[0] for h in self._hypotheses]
         for T in register(model, depth, K, seed=self.frame):
             if all(rotation_angle(T[:3, :3], U[:3, :3]) > 2.0 or np.linalg.norm(T[:3, 3] - U[:3, 3]) > 0.02
@@ -390,7 +394,7 @@ class Estimator:
                                 BAND_MIN_PX, self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask)
                 entry.found.segmentation, entry.found.silhouette = again, mask_view(again.robot, K, seen.depth)
                 if entry.found.surface is not None:
-                    entry.found.cloud = observed_cloud(seen.depth, again.robot, K, ROBOT_DEPTH_POINTS)
+                    entry.found.cloud = _robot_cloud(seen.depth, again, K)
 
     def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray, timings: dict,
                   prior: np.ndarray | None = None):
@@ -601,6 +605,11 @@ def _check_inputs(rgb, depth, mask, K, T_base_ee) -> None:
                         "is K for another resolution?")
     if np.shape(T_base_ee) != (4, 4):
         raise UserError(f"T_base_ee must be 4x4, got {np.shape(T_base_ee)}")
+
+
+def _robot_cloud(depth: np.ndarray, seen: Segmentation, K: np.ndarray) -> np.ndarray:
+    """The depth points of the robot as the estimator segmented it, for the refinement with depth."""
+    return observed_cloud(depth, seen.robot, K, ROBOT_DEPTH_POINTS)
 
 
 def _explains_depth(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, depth: np.ndarray,

@@ -60,7 +60,8 @@ class PlaneTerms:
     target_cam: np.ndarray  # (N, 3) the observed depth points, camera frame
 
 
-def _nearest(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel | list[SurfaceModel],
+def _nearest(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]],
+             model: SurfaceModel | list[SurfaceModel],
              gate_m: float = np.inf) -> tuple[list, list, np.ndarray, np.ndarray]:
     """The frames with depth points and their models, and each point's distance to its nearest model point
     and that point's index (inf and len(model.points) beyond `gate_m`). One model: all frames in one
@@ -78,8 +79,8 @@ def _nearest(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]]
     return frames, models, np.concatenate([d for d, _ in found]), np.concatenate([i for _, i in found])
 
 
-def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel | list[SurfaceModel],
-              gate_m: float) -> PlaneTerms:
+def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]],
+              model: SurfaceModel | list[SurfaceModel], gate_m: float) -> PlaneTerms:
     """frames: (T_base_ee, observed cloud) each; each observed point pairs with its nearest model point
     within `gate_m` (`model`: one for all frames, or one per frame)."""
     frames, models, dist, idx = _nearest(T_cam_base, frames, model, gate_m)
@@ -142,8 +143,8 @@ def sensor_plane_term(planes: PlaneTerms, T_cam_base: np.ndarray, sigma_0: float
     return term
 
 
-def depth_distances(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], model: SurfaceModel | list[SurfaceModel],
-                    sigma_0: float, k_z2: float) -> np.ndarray:
+def depth_distances(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]],
+                    model: SurfaceModel | list[SurfaceModel], sigma_0: float, k_z2: float) -> np.ndarray:
     """The key frames' depth points' distances to the nearest model point, each over the sensor model
     sigma(z) = sigma_0 + k_z2 z^2 of `sensor_plane_term`."""
     frames, _, dist, _ = _nearest(T_cam_base, frames, model)
