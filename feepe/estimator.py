@@ -24,7 +24,7 @@ from feepe.icp import (PlaneTerm, SurfaceModel, associate, depth_agreement, dept
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
-from feepe.registration import depth_fit, register
+from feepe.registration import depth_fit, outline_contrast, register
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
 from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, segment
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
@@ -46,6 +46,7 @@ BAND_PER_PX = 3.0  # the next frame's band: this many times how far (px) the las
 MAX_HYPOTHESES = 5  # no mask given: the registrations' hypotheses kept and judged as frames arrive
 ACCEPT_AGREE = 0.5  # no mask given: a first calibration needs this share of the robot's depth pixels to agree
 ACCEPT_SEEN_THROUGH = 0.15  # and no more than this share seen through
+ACCEPT_CONTRAST = 0.8  # and the image's colour to change across this share of its outline (registration.py)
 OWN_MASKS_MIN_SIGMA_PX = 2.0  # no mask given: the outline's scale beside depth at least this. Our own masks err by a
 # bias of about a pixel (never averaged away over frames, as a segmenter's noise is), so the robot's depth
 # decides what the outline cannot (six seed-0 stereo segments, --masks none, AUC@1cm ADD / calibration after 15
@@ -352,7 +353,8 @@ class Estimator:
             if found.surface is not None:
                 found.cloud = _robot_cloud(depth, seen, K)
             timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
-            accepted = self.T_cam_base is not None or _explains_depth(self.parts, T_new, T_base_parts, depth, K)
+            accepted = self.T_cam_base is not None or _explains_frame(self.parts, T_new, T_base_parts, rgb, depth, K,
+                                                                      seen.view.inside > 0)
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found), need_candidates=False)
         self.frame += 1
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
@@ -612,12 +614,14 @@ def _robot_cloud(depth: np.ndarray, seen: Segmentation, K: np.ndarray) -> np.nda
     return observed_cloud(depth, seen.robot, K, ROBOT_DEPTH_POINTS)
 
 
-def _explains_depth(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, depth: np.ndarray,
-                    K: np.ndarray) -> bool:
-    """Whether the robot placed at the calibration agrees with the frame's depth well enough to be a first
-    estimate (no mask given): most of its pixels with depth agree, few are seen through."""
+def _explains_frame(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray,
+                    depth: np.ndarray, K: np.ndarray, drawn: np.ndarray) -> bool:
+    """Whether the robot placed at the calibration (`drawn`: its pixels) explains the frame well enough to be
+    a first estimate (no mask given): most of its pixels with depth agree, few are seen through, and the
+    image's colour changes across most of its outline."""
     grid = np.diag([1.0 / IOU_STRIDE, 1.0 / IOU_STRIDE, 1.0]) @ K
     coarse = depth[::IOU_STRIDE, ::IOU_STRIDE]
     found = depth_fit(parts.coarse.render_depth(placed(T_cam_base, T_base_parts), grid, coarse.shape), coarse)
     return (found.drawn > 0 and found.agree >= ACCEPT_AGREE * found.drawn
-            and found.seen_through <= ACCEPT_SEEN_THROUGH * found.drawn)
+            and found.seen_through <= ACCEPT_SEEN_THROUGH * found.drawn
+            and outline_contrast(drawn, rgb) >= ACCEPT_CONTRAST)

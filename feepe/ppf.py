@@ -33,6 +33,7 @@ class PpfOptions:
     sampling: float = 0.05  # distance step and voxel size, relative to the model diameter (Drost: 0.05)
     angle_bins: int = 30  # 12 deg
     scene_step: int = 5  # every 5th sampled scene point is a reference point
+    max_references: int | None = None  # at most this many reference points: the step grows on a larger scene
     hypotheses: int = 5  # best clusters refined by ICP
     icp_rounds: int = 10
     inlier_m: float = 0.005  # scene points this close to the posed model count as explained
@@ -94,7 +95,10 @@ class PpfDetector:
     def _votes(self, points, normals) -> list[tuple[float, np.ndarray]]:
         """(votes, T_cam_model) of each scene reference point's best (model point, angle)."""
         R_scene = _to_x_axis(normals)
-        refs = np.arange(0, len(points), self.opts.scene_step)
+        step = self.opts.scene_step
+        if self.opts.max_references:
+            step = max(step, -(-len(points) // self.opts.max_references))
+        refs = np.arange(0, len(points), step)
         best = _vote(points, normals, R_scene, refs, self.diameter, self.keys, self.ref, self.alpha, len(self.points),
                      self.step, self.opts.angle_bins)
         out = []

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from feepe import raster
 from feepe.icp import SurfaceModel
-from feepe.registration import background_planes, depth_fit, register
+from feepe.registration import CONTRAST_RGB, background_planes, depth_fit, outline_contrast, register
 from feepe.robot_starts import RobotSamples
 from feepe.segmentation import ColourModel, segment, trust
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, iou
@@ -220,3 +220,16 @@ def test_a_depth_fit_forgives_a_few_centimetres_behind_but_not_free_space():
     depth[2:4] += 0.5  # free space behind the model
     fit = depth_fit(rendered, depth)
     assert (fit.agree, fit.seen_through, fit.drawn) == (60, 20, 100)
+
+
+def test_the_colour_changes_across_the_true_outline_and_not_across_one_on_the_wall():
+    """At the true calibration the arm's outline separates its grey from the blue background; the same
+    outline moved onto the background (where a wall's depth could agree) has blue on both sides, and so has an
+    arm whose colour the background shares."""
+    parts, T_parts, _, rgb, _, _ = _scene()
+    drawn = parts.render_depth(T_parts, K, SHAPE) > 0
+    assert outline_contrast(drawn, rgb) > 0.9
+    assert outline_contrast(np.roll(drawn, 140, axis=1), rgb) < 0.1
+    blue = np.where(drawn[..., None], (40, 60, 160 + CONTRAST_RGB / 2), rgb).astype(np.uint8)
+    assert outline_contrast(drawn, blue) < 0.3
+    assert outline_contrast(np.zeros(SHAPE, bool), rgb) == 0.0
