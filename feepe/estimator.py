@@ -47,6 +47,8 @@ MAX_HYPOTHESES = 5  # no mask given: the registrations' hypotheses kept and judg
 ACCEPT_AGREE = 0.5  # no mask given: a first calibration needs this share of the robot's depth pixels to agree
 ACCEPT_SEEN_THROUGH = 0.15  # and no more than this share seen through
 ACCEPT_CONTRAST = 0.8  # and the image's colour to change across this share of its outline (registration.py)
+START_ROUNDS = 2  # a first estimate that does not explain its frame yet is refined again at its own segmentation
+# this many times: a hypothesis a few centimetres off comes in within one frame, not over several
 OWN_MASKS_MIN_SIGMA_PX = 2.0  # no mask given: the outline's scale beside depth at least this. Our own masks err by a
 # bias of about a pixel (never averaged away over frames, as a segmenter's noise is), so the robot's depth
 # decides what the outline cannot (six seed-0 stereo segments, --masks none, AUC@1cm ADD / calibration after 15
@@ -312,7 +314,7 @@ class Estimator:
             if self.T_cam_base is None or self.frame < self.opts.robot_start_frames:
                 t0 = time.perf_counter()
                 surface = SurfaceModel(*self._robot_samples.placed(T_base_parts))
-                self._judge_hypotheses(surface, T_base_parts, depth, K)
+                self._judge_hypotheses(surface, T_base_parts, rgb, depth, K)
                 timings["registration"] = 1e3 * (time.perf_counter() - t0)
             T = self.T_cam_base if self.T_cam_base is not None else (self._hypotheses[0][0] if self._hypotheses else None)
             if T is None:
@@ -341,20 +343,17 @@ class Estimator:
         with _BLAS.limit(limits=1, user_api="blas"):
             T_new, score, n_keys = self._estimate(found, T_base_ee, timings, prior=T)
             timings["optimisation"] = 1e3 * (time.perf_counter() - t0) - timings.get("refinement", 0.0)
-            t0 = time.perf_counter()
-            self._band_px = float(np.clip(BAND_PER_PX * self.parts.motion_px(placed(T, T_base_parts),
-                                                                           placed(T_new, T_base_parts), K),
-                                          BAND_MIN_PX, BAND_START_PX))
-            seen = segment(self.parts.coarse, T_new, T_base_parts, rgb, depth, K, self.colour, BAND_MIN_PX,
-                           self._depth_sigma, robot_mask=robot_mask, ee_mask=ee_mask)
-            self.colour.learn(rgb, seen)
-            self._depth_sigma = depth_sigma(seen)
-            found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
-            if found.surface is not None:
-                found.cloud = _robot_cloud(depth, seen, K)
-            timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
+            seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
             accepted = self.T_cam_base is not None or _explains_frame(self.parts, T_new, T_base_parts, rgb, depth, K,
                                                                       seen.view.inside > 0)
+            for _ in range(START_ROUNDS):
+                if accepted:
+                    break
+                refined = timings.get("refinement", 0.0)
+                T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
+                timings["refinement"] += refined
+                seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
+                accepted = _explains_frame(self.parts, T_new, T_base_parts, rgb, depth, K, seen.view.inside > 0)
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found), need_candidates=False)
         self.frame += 1
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
@@ -364,10 +363,31 @@ class Estimator:
         return FrameResult(T_new @ T_base_ee, T_new, score, len(found.candidates), n_keys, timings,
                            masks={"ee": seen.ee, "robot": seen.robot})
 
-    def _judge_hypotheses(self, model: SurfaceModel, T_base_parts: np.ndarray, depth: np.ndarray,
+    def _segment_again(self, T: np.ndarray, T_new: np.ndarray, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray,
+                       found: FrameCandidates, timings: dict) -> Segmentation:
+        """The frame segmented again at the refined calibration T_new, the colours learned from it, and the
+        next frame's band set by how far the refinement moved the robot from T."""
+        t0 = time.perf_counter()
+        seen = found.segmentation
+        self._band_px = float(np.clip(BAND_PER_PX * self.parts.motion_px(placed(T, found.parts),
+                                                                       placed(T_new, found.parts), K),
+                                      BAND_MIN_PX, BAND_START_PX))
+        seen = segment(self.parts.coarse, T_new, found.parts, rgb, depth, K, self.colour, BAND_MIN_PX,
+                       self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask)
+        self.colour.learn(rgb, seen)
+        self._depth_sigma = depth_sigma(seen)
+        found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
+        if found.surface is not None:
+            found.cloud = _robot_cloud(depth, seen, K)
+        timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
+        return seen
+
+    def _judge_hypotheses(self, model: SurfaceModel, T_base_parts: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
                           K: np.ndarray) -> None:
         """The robot found again in this frame's depth (feepe/registration.py); every hypothesis so far and
-        the new ones scored by their depth agreement on this frame, summed over the frames seen. `model`: the
+        the new ones scored by their depth agreement on this frame, borne out by the colour across their outline
+        (on the coarse grid: the hypotheses are a centimetre or so off before any refinement, and an offset
+        of three coarse pixels spans that), summed over the frames seen. `model`: the
         robot's surface samples placed by this frame's joint states (base frame)."""
         known = [h[0] for h in self._hypotheses]
         for T in register(model, depth, K, seed=self.frame):
@@ -376,10 +396,10 @@ class Estimator:
                 self._hypotheses.append([T, 0.0])
                 known.append(T)
         grid = np.diag([1.0 / IOU_STRIDE, 1.0 / IOU_STRIDE, 1.0]) @ K
-        coarse = depth[::IOU_STRIDE, ::IOU_STRIDE]
+        coarse, coarse_rgb = depth[::IOU_STRIDE, ::IOU_STRIDE], rgb[::IOU_STRIDE, ::IOU_STRIDE]
         for h in self._hypotheses:
             rendered = self.parts.coarse.render_depth(placed(h[0], T_base_parts), grid, coarse.shape)
-            h[1] += depth_fit(rendered, coarse).score
+            h[1] += depth_fit(rendered, coarse).score(outline_contrast(rendered > 0, coarse_rgb))
         self._hypotheses.sort(key=lambda h: -h[1])
         del self._hypotheses[MAX_HYPOTHESES:]
 

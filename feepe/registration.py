@@ -108,9 +108,10 @@ class DepthFit:
     seen_through: int  # the sensor sees well behind the model's surface: the model cannot stand there
     drawn: int  # model pixels where the sensor has depth
 
-    @property
-    def score(self) -> float:
-        return self.agree - SEEN_THROUGH_WEIGHT * self.seen_through
+    def score(self, contrast: float = 1.0) -> float:
+        """`contrast`: the pose's outline_contrast; its agreeing pixels count as far as the image's colour
+        bears the outline out (a wall's depth can agree with a pose lying on it, its colour does not)."""
+        return contrast * self.agree - SEEN_THROUGH_WEIGHT * self.seen_through
 
 
 def depth_fit(rendered: np.ndarray, depth: np.ndarray, noise_m: float = 0.01,

@@ -71,7 +71,7 @@ def test_the_arm_is_found_in_a_depth_image_with_a_floor_and_a_wall():
     assert min(e for e in errors if e[0] < 1.0)[1] < 0.01, errors
     turned = T_CAM_BASE @ make_T(Rotation.from_euler("z", 10, degrees=True).as_matrix())
     fits = [depth_fit(parts.render_depth(np.repeat(T[None], 4, 0), K, SHAPE), depth) for T in (T_CAM_BASE, turned)]
-    assert fits[0].score > fits[1].score and fits[0].agree > 0.95 * fits[0].drawn
+    assert fits[0].score() > fits[1].score() and fits[0].agree > 0.95 * fits[0].drawn
 
 
 @pytest.mark.parametrize("occluder", [False, True])
