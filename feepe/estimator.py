@@ -311,7 +311,7 @@ class Estimator:
         timings: dict = {}
         surface = None  # the robot's surface samples placed by this frame's joint states, built once when needed
         with _BLAS.limit(limits=1, user_api="blas"):
-            if self.T_cam_base is None or self.frame < self.opts.robot_start_frames:
+            if self.T_cam_base is None:
                 t0 = time.perf_counter()
                 surface = SurfaceModel(*self._robot_samples.placed(T_base_parts))
                 self._judge_hypotheses(surface, T_base_parts, rgb, depth, K)
