@@ -44,7 +44,9 @@ BAND_START_PX = 8.0  # no mask given: the segmentation's band around a calibrati
 BAND_MIN_PX = 2.0  # and around one just refined
 BAND_PER_PX = 3.0  # the next frame's band: this many times how far (px) the last refinement moved the robot
 MAX_HYPOTHESES = 5  # no mask given: the registrations' hypotheses kept and judged as frames arrive
-ACCEPT_AGREE = 0.5  # no mask given: a first calibration needs this share of the robot's depth pixels to agree
+ACCEPT_AGREE = 0.5  # no mask given: a first calibration needs this share of the robot's depth pixels that nothing
+# hides (the sensor not nearer than the model) to agree
+ACCEPT_UNHIDDEN = 0.5  # nothing to hide at least this share of them
 ACCEPT_SEEN_THROUGH = 0.15  # and no more than this share seen through
 ACCEPT_CONTRAST = 0.8  # and the image's colour to change across this share of its outline (registration.py)
 START_ROUNDS = 2  # a first estimate that does not explain its frame yet is refined again at its own segmentation
@@ -642,6 +644,7 @@ def _explains_frame(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts
     grid = np.diag([1.0 / IOU_STRIDE, 1.0 / IOU_STRIDE, 1.0]) @ K
     coarse = depth[::IOU_STRIDE, ::IOU_STRIDE]
     found = depth_fit(parts.coarse.render_depth(placed(T_cam_base, T_base_parts), grid, coarse.shape), coarse)
-    return (found.drawn > 0 and found.agree >= ACCEPT_AGREE * found.drawn
+    unhidden = found.drawn - found.in_front
+    return (unhidden >= ACCEPT_UNHIDDEN * found.drawn > 0 and found.agree >= ACCEPT_AGREE * unhidden
             and found.seen_through <= ACCEPT_SEEN_THROUGH * found.drawn
             and outline_contrast(drawn, rgb) >= ACCEPT_CONTRAST)

@@ -107,6 +107,7 @@ class DepthFit:
     agree: int  # within the sensor's noise of the model's surface
     seen_through: int  # the sensor sees well behind the model's surface: the model cannot stand there
     drawn: int  # model pixels where the sensor has depth
+    in_front: int = 0  # the sensor sees nearer than the model's surface: something (or a stereo error) hides it
 
     def score(self, contrast: float = 1.0) -> float:
         """`contrast`: the pose's outline_contrast; its agreeing pixels count as far as the image's colour
@@ -121,8 +122,8 @@ def depth_fit(rendered: np.ndarray, depth: np.ndarray, noise_m: float = 0.01,
     drawn = (rendered > 0) & (depth > 0)
     tolerance = noise_m + noise_z2 * rendered**2
     return DepthFit(int(np.count_nonzero(drawn & (np.abs(depth - rendered) < tolerance))),
-                          int(np.count_nonzero(drawn & (depth > rendered + tolerance + SEEN_THROUGH_M))),
-                          int(np.count_nonzero(drawn)))
+                    int(np.count_nonzero(drawn & (depth > rendered + tolerance + SEEN_THROUGH_M))),
+                    int(np.count_nonzero(drawn)), int(np.count_nonzero(drawn & (depth <= rendered - tolerance))))
 
 
 def outline_contrast(drawn: np.ndarray, rgb: np.ndarray) -> float:

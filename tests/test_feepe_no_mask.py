@@ -211,15 +211,16 @@ def test_a_stereo_cameras_depth_is_not_read_at_its_edges_nor_at_a_fixed_scale():
     assert depth_sigma(seen) == pytest.approx(0.02, rel=0.1)
 
 
-def test_a_depth_fit_forgives_a_few_centimetres_behind_but_not_free_space():
+def test_a_depth_fit_forgives_a_few_centimetres_behind_but_not_free_space_and_counts_what_hides_it():
     from feepe.registration import SEEN_THROUGH_M
 
     rendered = np.full((10, 10), 1.0)
     depth = rendered.copy()
     depth[:2] += 0.02 + SEEN_THROUGH_M / 2  # past the tolerance, as a stereo camera's thin parts
     depth[2:4] += 0.5  # free space behind the model
+    depth[4] -= 0.3  # something in front of it
     fit = depth_fit(rendered, depth)
-    assert (fit.agree, fit.seen_through, fit.drawn) == (60, 20, 100)
+    assert (fit.agree, fit.seen_through, fit.drawn, fit.in_front) == (50, 20, 100, 10)
 
 
 def test_the_colour_changes_across_the_true_outline_and_not_across_one_on_the_wall():
