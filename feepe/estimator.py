@@ -369,13 +369,12 @@ class Estimator:
                        found: FrameCandidates, timings: dict) -> Segmentation:
         """The frame segmented again at the refined calibration T_new, the colours learned from it, and the
         next frame's band set by how far the refinement moved the robot from T."""
-        t0 = time.perf_counter()
-        seen = found.segmentation
+        t0, before = time.perf_counter(), found.segmentation
         self._band_px = float(np.clip(BAND_PER_PX * self.parts.motion_px(placed(T, found.parts),
                                                                        placed(T_new, found.parts), K),
                                       BAND_MIN_PX, BAND_START_PX))
         seen = segment(self.parts.coarse, T_new, found.parts, rgb, depth, K, self.colour, BAND_MIN_PX,
-                       self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask)
+                       self._depth_sigma, robot_mask=before.robot_mask, ee_mask=before.ee_mask)
         self.colour.learn(rgb, seen)
         self._depth_sigma = depth_sigma(seen)
         found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
@@ -639,8 +638,8 @@ def _robot_cloud(depth: np.ndarray, seen: Segmentation, K: np.ndarray) -> np.nda
 def _explains_frame(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray,
                     depth: np.ndarray, K: np.ndarray, drawn: np.ndarray) -> bool:
     """Whether the robot placed at the calibration (`drawn`: its pixels) explains the frame well enough to be
-    a first estimate (no mask given): most of its pixels with depth agree, few are seen through, and the
-    image's colour changes across most of its outline."""
+    a first estimate (no mask given): nothing nearer hides most of its pixels with depth, most of those
+    agree, few are seen through, and the image's colour changes across most of its outline."""
     grid = np.diag([1.0 / IOU_STRIDE, 1.0 / IOU_STRIDE, 1.0]) @ K
     coarse = depth[::IOU_STRIDE, ::IOU_STRIDE]
     found = depth_fit(parts.coarse.render_depth(placed(T_cam_base, T_base_parts), grid, coarse.shape), coarse)

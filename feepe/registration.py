@@ -28,7 +28,8 @@ from kernel.transforms import rotation_angle
 PPF = PpfOptions(sampling=0.04, scene_step=1, max_references=1000, hypotheses=24)  # robot-sized: 4-6 cm voxels on
 # a 1-1.5 m robot. Every scene point a reference up to 1000, and 24 clusters refined: where only a UR10e's upper
 # links are in view they are a tenth of the points, and the true pose was not among every third point's 8 best
-# (seed-7 stereo scene 14); its clusters are cheap beside the voting (1-2 s, 0.3-1.3 s before)
+# (seed-7 stereo scene 14); the clusters' ICP is cheap beside the voting (0.7-2.3 s a frame on 12 stereo
+# segments, 6.7 s with 3920 scene points)
 PLANE_TOL_M = 0.015  # scene points this close to a large plane belong to it, or within PLANE_TOL_SIGMAS
 PLANE_TOL_SIGMAS = 3.0  # of a stereo camera's noise at their depth: sigma(z) = 2 mm + 0.0036 z^2 (Intel's D435
 # RMS model, as feepe.estimator's depth_sigma_*): 1.5 cm holds exact depth's floor, not a stereo floor at 3 m
@@ -107,7 +108,7 @@ class DepthFit:
     agree: int  # within the sensor's noise of the model's surface
     seen_through: int  # the sensor sees well behind the model's surface: the model cannot stand there
     drawn: int  # model pixels where the sensor has depth
-    in_front: int = 0  # the sensor sees nearer than the model's surface: something (or a stereo error) hides it
+    in_front: int  # the sensor sees nearer than the model's surface: something (or a stereo error) hides it
 
     def score(self, contrast: float = 1.0) -> float:
         """`contrast`: the pose's outline_contrast; its agreeing pixels count as far as the image's colour

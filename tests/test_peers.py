@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from eval.handeye import METHODS, BoardDetector, calibrate
-from feepe.ppf import PpfDetector
+from feepe.ppf import PpfDetector, PpfOptions
 from feepe.icp import SurfaceModel
 from kernel.errors import UserError
 from kernel.transforms import make_T, rotation_angle, transform_points
@@ -80,3 +80,5 @@ def test_ppf_finds_the_gripper_in_a_depth_scene(assets):
     T_est, explained = det.detect(points, normals)
     assert np.linalg.norm(T_est[:3, 3] - T[:3, 3]) < 0.01 and np.rad2deg(rotation_angle(T_est[:3, :3], T[:3, :3])) < 5
     assert explained > 0.5
+    capped = PpfDetector(model, PpfOptions(scene_step=1, max_references=40))  # a larger scene, a larger step
+    assert 0 < len(capped._votes(points, normals)) <= 40 < len(points)
