@@ -24,11 +24,11 @@ from feepe.icp import (PlaneTerm, SurfaceModel, associate, depth_agreement, dept
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
-from feepe.registration import depth_fit, outline_contrast, register
+from feepe.registration import DepthFit, depth_fit, outline_contrast, register
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
 from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, segment
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
-                              mean_iou, placed)
+                              mean_iou, placed, strided)
 from feepe.symmetry import consensus
 from kernel.errors import UserError
 from kernel.transforms import inv_T, rotation_angle, transform_points
@@ -351,9 +351,7 @@ class Estimator:
             for _ in range(START_ROUNDS):
                 if accepted:
                     break
-                refined = timings.get("refinement", 0.0)
                 T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
-                timings["refinement"] += refined
                 seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
                 accepted = _explains_frame(self.parts, T_new, T_base_parts, rgb, depth, K, seen.view.inside > 0)
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found), need_candidates=False)
@@ -396,11 +394,10 @@ class Estimator:
                    for U in known):
                 self._hypotheses.append([T, 0.0])
                 known.append(T)
-        grid = np.diag([1.0 / IOU_STRIDE, 1.0 / IOU_STRIDE, 1.0]) @ K
-        coarse, coarse_rgb = depth[::IOU_STRIDE, ::IOU_STRIDE], rgb[::IOU_STRIDE, ::IOU_STRIDE]
+        coarse_rgb, _ = strided(rgb, K, IOU_STRIDE)
         for h in self._hypotheses:
-            rendered = self.parts.coarse.render_depth(placed(h[0], T_base_parts), grid, coarse.shape)
-            h[1] += depth_fit(rendered, coarse).score(outline_contrast(rendered > 0, coarse_rgb))
+            fit, rendered = _coarse_depth_fit(self.parts, h[0], T_base_parts, depth, K)
+            h[1] += fit.score(outline_contrast(rendered > 0, coarse_rgb))
         self._hypotheses.sort(key=lambda h: -h[1])
         del self._hypotheses[MAX_HYPOTHESES:]
 
@@ -459,7 +456,7 @@ class Estimator:
         clouds, models = self._depth_frames(fitted) if opts.depth_in_refinement else ([], self.model)
         starts = self._starts(T, T_base_ee, found)
         T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in fitted], clouds, models)
-        timings["refinement"] = 1e3 * (time.perf_counter() - t0)
+        timings["refinement"] = timings.get("refinement", 0.0) + 1e3 * (time.perf_counter() - t0)
         return T
 
     def _depth_frames(self, fitted: list) -> tuple[list, SurfaceModel | list[SurfaceModel]]:
@@ -635,14 +632,21 @@ def _robot_cloud(depth: np.ndarray, seen: Segmentation, K: np.ndarray) -> np.nda
     return observed_cloud(depth, seen.robot, K, ROBOT_DEPTH_POINTS)
 
 
+def _coarse_depth_fit(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, depth: np.ndarray,
+                      K: np.ndarray) -> tuple[DepthFit, np.ndarray]:
+    """How the frame's depth meets the robot's (coarse meshes) placed at the calibration, on every
+    IOU_STRIDE-th pixel, and that rendered depth."""
+    coarse, grid = strided(depth, K, IOU_STRIDE)
+    rendered = parts.coarse.render_depth(placed(T_cam_base, T_base_parts), grid, coarse.shape)
+    return depth_fit(rendered, coarse), rendered
+
+
 def _explains_frame(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray,
                     depth: np.ndarray, K: np.ndarray, drawn: np.ndarray) -> bool:
     """Whether the robot placed at the calibration (`drawn`: its pixels) explains the frame well enough to be
     a first estimate (no mask given): nothing nearer hides most of its pixels with depth, most of those
     agree, few are seen through, and the image's colour changes across most of its outline."""
-    grid = np.diag([1.0 / IOU_STRIDE, 1.0 / IOU_STRIDE, 1.0]) @ K
-    coarse = depth[::IOU_STRIDE, ::IOU_STRIDE]
-    found = depth_fit(parts.coarse.render_depth(placed(T_cam_base, T_base_parts), grid, coarse.shape), coarse)
+    found, _ = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
     unhidden = found.drawn - found.in_front
     return (unhidden >= ACCEPT_UNHIDDEN * found.drawn > 0 and found.agree >= ACCEPT_AGREE * unhidden
             and found.seen_through <= ACCEPT_SEEN_THROUGH * found.drawn

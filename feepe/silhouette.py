@@ -453,7 +453,7 @@ def mean_iou(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tuple[
 def frame_iou(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, stride: int) -> float:
     """One frame's mask IoU on every `stride`-th pixel, stored like its contour (`_reused`)."""
     def measure() -> float:
-        seen, K = _strided(mv, stride)
+        seen, K = strided(mv.mask, mv.K, stride)
         z_model = (model.coarse if stride > 1 else model).render_depth(T_cam_parts, K, seen.shape)
         drawn = z_model > 0
         if mv.depth is not None:  # model pixels that something nearer covers cannot be judged
@@ -468,7 +468,7 @@ def iou_bound(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
     """An upper bound of frame_iou without rendering (for a decision that only asks whether an IoU can
     exceed a bar): the share of the mask inside the image boxes that hold each part's bounding sphere.
     What is drawn lies in the boxes, and the union of drawn and mask holds the mask."""
-    seen, K = _strided(mv, stride)
+    seen, K = strided(mv.mask, mv.K, stride)
     total = np.count_nonzero(seen)
     if not total:
         return 1.0
@@ -487,9 +487,9 @@ def iou_bound(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
     return np.count_nonzero(seen & boxes) / total
 
 
-def _strided(mv: MaskView, stride: int) -> tuple[np.ndarray, np.ndarray]:
-    """The mask on every `stride`-th pixel and the intrinsics of that grid."""
-    return mv.mask[::stride, ::stride], np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ mv.K
+def strided(image: np.ndarray, K: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """The image on every `stride`-th pixel and the intrinsics of that grid."""
+    return image[::stride, ::stride], np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ K
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
