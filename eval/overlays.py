@@ -15,7 +15,6 @@ from functools import lru_cache
 from pathlib import Path
 
 import cv2
-import imageio.v3 as iio
 import numpy as np
 import trimesh
 
@@ -26,12 +25,11 @@ from kernel.bop import read_frame
 from kernel.camera import project
 from kernel.cli import output_dir, run_command
 from kernel.dataset import Dataset
-from kernel.drawing import BACKGROUND, GT_COLOUR, caption, draw_outline, side_by_side
+from kernel.drawing import BACKGROUND, EST_COLOUR, GT_COLOUR, caption, draw_outline, side_by_side
 from kernel.errors import UserError
-from kernel.files import read_json, write_atomic, write_png
+from kernel.files import read_json, write_gif, write_png
 from kernel.transforms import transform_points
 
-EST_COLOUR = (255, 0, 255)
 AXIS_COLOURS = ((255, 50, 50), (50, 230, 50), (60, 110, 255))  # x, y, z
 SHIFT = 4  # OpenCV fixed-point bits: the axes drawn at 1/16 px
 
@@ -140,12 +138,6 @@ def open_results(folder: Path, dataset: Path | None = None) -> ResultFolder:
     estimates = {(r.scene_id, r.im_id): r.T_cam_ee for r in read_results(folder / "results.csv").values()}
     errors = {(r.scene_id, r.im_id): r for r in read_errors(folder / "errors.csv")}
     return ResultFolder(folder, root, estimates, errors)
-
-
-def write_gif(path: Path, images: list[np.ndarray], fps: float = 4.0) -> None:
-    """An endlessly looping GIF of same-sized RGB frames."""
-    data = iio.imwrite("<bytes>", np.stack(images), extension=".gif", duration=1000.0 / fps, loop=0)
-    write_atomic(Path(path), data)
 
 
 def write_overlays(folder: Path, out: Path, scenes: list[int] | None = None, gif: bool = False,

@@ -21,13 +21,13 @@ from pathlib import Path
 
 import cv2
 
-from eval.overlays import EST_COLOUR, ResultFolder, open_results, write_gif
+from eval.overlays import EST_COLOUR, ResultFolder, open_results
 from eval.records import FrameErrors
 from eval.tables import Run, load_runs, write_tables
 from kernel.cli import run_command
 from kernel.drawing import GT_COLOUR
 from kernel.errors import UserError
-from kernel.files import write_png
+from kernel.files import write_gif, write_png
 
 STYLE = """
 body { font: 14px/1.4 system-ui, sans-serif; margin: 2em auto; max-width: 1400px; padding: 0 1em; color: #222; }

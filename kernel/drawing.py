@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 GT_COLOUR = (255, 230, 0)  # yellow: the ground-truth silhouette, in the contact sheets and the pose overlays
+EST_COLOUR = (255, 0, 255)  # magenta: a model at an estimate (the evaluator's overlays, the calibration's page)
 BACKGROUND = (32, 32, 32)
 TEXT = (235, 235, 235)
 FONT, FONT_SCALE, LINE_H = cv2.FONT_HERSHEY_SIMPLEX, 0.35, 14

@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 import cv2
+import imageio.v3 as iio
 import numpy as np
 
 from kernel.errors import UserError
@@ -27,6 +28,12 @@ def write_png(path: Path, image: np.ndarray) -> None:
     """Encoded in memory: cv2.imwrite picks the format from the extension, which the temp name lacks."""
     _, buf = cv2.imencode(".png", image)
     write_atomic(path, buf.tobytes())
+
+
+def write_gif(path: Path, images: list[np.ndarray], fps: float = 4.0) -> None:
+    """An endlessly looping GIF of same-sized RGB frames."""
+    data = iio.imwrite("<bytes>", np.stack(images), extension=".gif", duration=1000.0 / fps, loop=0)
+    write_atomic(Path(path), data)
 
 
 def read_png(path: Path) -> np.ndarray:
