@@ -116,12 +116,17 @@ class DepthFit:
         return contrast * self.agree - SEEN_THROUGH_WEIGHT * self.seen_through
 
 
+def depth_tolerance(rendered: np.ndarray, noise_m: float = 0.01, noise_z2: float = 0.005) -> np.ndarray:
+    """Within noise_m + noise_z2 z^2 (1.5 cm at 1 m) of the model's depth the sensor agrees with it: a stereo
+    camera's noise and a few millimetres of calibration error."""
+    return noise_m + noise_z2 * rendered**2
+
+
 def depth_fit(rendered: np.ndarray, depth: np.ndarray, noise_m: float = 0.01,
                     noise_z2: float = 0.005) -> DepthFit:
-    """rendered: the model's depth (m, 0 off it) on the grid of `depth`. The tolerance noise_m + noise_z2 z^2
-    (1.5 cm at 1 m) holds a stereo camera's noise and a few millimetres of calibration error."""
+    """rendered: the model's depth (m, 0 off it) on the grid of `depth`."""
     drawn = (rendered > 0) & (depth > 0)
-    tolerance = noise_m + noise_z2 * rendered**2
+    tolerance = depth_tolerance(rendered, noise_m, noise_z2)
     return DepthFit(int(np.count_nonzero(drawn & (np.abs(depth - rendered) < tolerance))),
                     int(np.count_nonzero(drawn & (depth > rendered + tolerance + SEEN_THROUGH_M))),
                     int(np.count_nonzero(drawn)), int(np.count_nonzero(drawn & (depth <= rendered - tolerance))))
