@@ -106,7 +106,7 @@ def test_feepe_runs_on_camera_frames_without_the_generator(tiny_dataset, tmp_pat
     assert np.linalg.norm(T_cam_base[:3, 3] - truth[:3, 3]) < 0.010
 
 
-def test_readme_shows_the_example_that_runs():
-    """The README's camera example is the file the test above runs, line for line."""
+def test_the_estimator_page_shows_the_example_that_runs():
+    """docs/feepe.md's camera example is the file the test above runs, line for line."""
     code = EXAMPLE.read_text().split('"""', 2)[2].strip("\n")
-    assert f"```python\n{code}\n```" in (REPO / "README.md").read_text()
+    assert f"```python\n{code}\n```" in (REPO / "docs" / "feepe.md").read_text()
