@@ -2,8 +2,11 @@
 camera-to-base transform out in forms a robot stack loads; the same calibration as eval.run on the BOP scene
 the recording was made from; bad recordings are one line and nothing written."""
 
+import csv
+import io
 import json
 import re
+import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -16,12 +19,12 @@ from scipy.spatial.transform import Rotation
 
 from feepe.calibrate.bag import colour_image, depth_image
 from feepe.calibrate.outputs import Frames, as_handeye_yaml, as_json, as_static_transform_publisher, as_urdf_joint
-from feepe.calibrate.recording import interpolate_joints, intrinsics, nearest
+from feepe.calibrate.recording import Recording, interpolate_joints, intrinsics, nearest, thinned
 from feepe.calibrate.uncertainty import estimate
 from feepe.calibrate.verdict import judge
 from kernel.errors import UserError
 from kernel.transforms import inv_T, make_T
-from tests.recordings import write_bag, write_folder
+from eval.recordings import write_bag, write_folder
 from tests.test_kernel_boundary import BLOCKER, REPO
 
 FRAMES = Frames("base", "camera_color_optical_frame", "ee_mount")
@@ -62,6 +65,8 @@ def test_streams_pair_by_stamp_and_joints_interpolate_between_messages():
         assert np.array_equal(intrinsics(info, "x")[0], K)
     with pytest.raises(UserError, match="no intrinsics"):
         intrinsics({"D": [0]}, "camera_info.yaml")
+    ten = Recording("x", 10, lambda: iter(range(10)))
+    assert thinned(ten, 4).count == 3 and list(thinned(ten, 4).read()) == [0, 4, 8]
 
 
 def test_ros_images_decode_as_rep_118_says():
@@ -125,24 +130,29 @@ def _eval_calibration(tiny_dataset, scene: Path, out: Path) -> np.ndarray:
 
 
 def test_a_ros2_bag_and_a_folder_give_the_calibration_eval_run_gives_on_the_scene(tiny_dataset, assets, tmp_path):
-    """A ROS 2 bag (MCAP, realsense2-like topics, the depth stamps wandering 8 ms from the colour's) and a
-    recording folder of one rendered segment (read with the generator and the evaluator not importable): the
-    transform written is eval.run's --masks none calibration of the same frames to 0.1 mm, in every form."""
+    """A ROS 2 bag (MCAP, realsense2-like topics, the depth stamps wandering 8 ms from the colour's), written
+    and calibrated by `eval.calibration_tool` as a user runs the tool, and a recording folder of the same
+    rendered segment (read with the generator and the evaluator not importable): the transform written is
+    eval.run's --masks none calibration of the same frames to 0.1 mm, in every form."""
     scene = _scene(tiny_dataset)
     expected = inv_T(_eval_calibration(tiny_dataset, scene, tmp_path / "eval"))
-    write_bag(scene, tmp_path / "rec_bag")
+    tool = [sys.executable, "-m", "eval.calibration_tool", str(tiny_dataset), "--scenes", str(int(scene.name)),
+            "--out", str(tmp_path / "tool")]
+    proc = subprocess.run(tool, capture_output=True, text=True, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    segment = next(csv.DictReader(io.StringIO((tmp_path / "tool" / "segments.csv").read_text())))
+    assert float(segment["error_mm"]) < 10  # at the workspace, against the truth
+    # six frames leave two calibrations in the second half: too few to state a bound, and the verdict says so
+    assert segment["two_sigma_mm"] == "" and segment["verdict"] == "UNCERTAIN"
     write_folder(scene, tmp_path / "rec_folder")
-    for name in ("rec_bag", "rec_folder"):
-        proc = _calibrate(tiny_dataset, assets, tmp_path / name, tmp_path / f"out_{name}",
-                          no_generator=name == "rec_folder")
-        assert proc.returncode == 0, proc.stderr[-2000:]
-        assert "verdict:" in proc.stdout
-        out = tmp_path / f"out_{name}"
+    proc = _calibrate(tiny_dataset, assets, tmp_path / "rec_folder", tmp_path / "out_folder", no_generator=True)
+    assert proc.returncode == 0 and "verdict:" in proc.stdout, proc.stderr[-2000:]
+    bag_run = tmp_path / "tool" / "runs" / scene.name
+    for out in (bag_run, tmp_path / "out_folder"):
         doc = json.loads((out / "calibration.json").read_text())
         T = np.array(doc["T_base_camera"])
-        T_bag = T if name == "rec_bag" else T_bag
-        assert np.linalg.norm(T[:3, 3] - expected[:3, 3]) < 1e-4, name
-        assert np.degrees(Rotation.from_matrix(T[:3, :3].T @ expected[:3, :3]).magnitude()) < 0.01, name
+        assert np.linalg.norm(T[:3, 3] - expected[:3, 3]) < 1e-4, out
+        assert np.degrees(Rotation.from_matrix(T[:3, :3].T @ expected[:3, :3]).magnitude()) < 0.01, out
         assert doc["estimated_frames"] == doc["frames"] == 6 and doc["parent_frame"] == "base"
         handeye = yaml.safe_load((out / "easy_handeye2.yaml").read_text())["transform"]
         assert np.allclose([handeye["translation"][k] for k in "xyz"], T[:3, 3], atol=1e-9)
@@ -150,8 +160,8 @@ def test_a_ros2_bag_and_a_folder_give_the_calibration_eval_run_gives_on_the_scen
         assert len(rows) == 7 and all(np.isfinite(float(r.split(",")[6])) for r in rows[1:])  # depth_mm
         assert (out / "report.html").is_file() and (out / "overlay.gif").is_file()
     # solved again from the samples the bag's run saved, not the bag: the same calibration
-    bag_run = tmp_path / "out_rec_bag"
-    (tmp_path / "rec_bag").rename(tmp_path / "gone")
+    T_bag = np.array(json.loads((bag_run / "calibration.json").read_text())["T_base_camera"])
+    shutil.rmtree(tmp_path / "tool" / "bags")
     proc = subprocess.run([sys.executable, "-m", "feepe", "calibrate", "--resume", "--out", str(bag_run), "--quiet"],
                           capture_output=True, text=True, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -18,7 +18,7 @@ from feepe.calibrate.bag import Topics, is_bag, read_bag
 from feepe.calibrate.folder import FolderWriter, read_folder
 from feepe.calibrate.page import Overlays, write_page
 from feepe.calibrate.outputs import Frames, as_handeye_yaml, as_json, as_static_transform_publisher, as_urdf_joint
-from feepe.calibrate.recording import Recording
+from feepe.calibrate.recording import Recording, thinned
 from feepe.calibrate.robot import UrdfRobot
 from feepe.calibrate.solve import MASKS, Solve, SolveSettings, check, solve
 from feepe.calibrate.uncertainty import MIN_FRAMES, estimate
@@ -60,6 +60,7 @@ def parser() -> argparse.ArgumentParser:
                    help="bags: a colour frame's depth image at most this far in time, s (default 0.02)")
     p.add_argument("--joint-gap", type=float, default=0.1,
                    help="bags: joint states around a colour frame at most this far apart, s (default 0.1)")
+    p.add_argument("--every", type=int, default=1, help="take every N-th frame (default 1: all)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -94,11 +95,15 @@ def read_recording(args) -> Recording:
     for flag, value in (("--sync-tolerance", args.sync_tolerance), ("--joint-gap", args.joint_gap)):
         if not value > 0:
             raise UserError(f"{flag} must be a positive number of seconds, got {value}")
+    if args.every < 1:
+        raise UserError(f"--every must be 1 or more, got {args.every}")
     if not args.recording.exists():
         raise UserError(f"{args.recording}: no such folder or bag")
     if is_bag(args.recording):
-        return read_bag(args.recording, Topics.parse(args.topics), args.sync_tolerance, args.joint_gap)
-    return read_folder(args.recording)
+        found = read_bag(args.recording, Topics.parse(args.topics), args.sync_tolerance, args.joint_gap)
+    else:
+        found = read_folder(args.recording)
+    return thinned(found, args.every)
 
 
 def calibrate(args) -> str:

@@ -32,6 +32,15 @@ class Recording:
     sync: dict = field(default_factory=dict)  # how the streams were paired (tolerances, offsets, dropped frames)
 
 
+def thinned(recording: Recording, every: int) -> Recording:
+    """Every `every`-th frame of the recording (a 30 Hz bag holds far more frames than a calibration needs)."""
+    if every == 1:
+        return recording
+    return Recording(recording.source, -(-recording.count // every),
+                     lambda: (f for k, f in enumerate(recording.read()) if k % every == 0),
+                     {**recording.sync, "every": every})
+
+
 def nearest(stamps: np.ndarray, t: float, tolerance: float) -> int | None:
     """Index of the stamp nearest t, if within tolerance (seconds)."""
     if len(stamps) == 0:
