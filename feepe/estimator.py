@@ -61,10 +61,10 @@ ROBOT_DEPTH_POINTS = 12000  # no mask given: the robot's depth points per frame 
 # points' number (six seed-0 stereo mini segments, --masks none, AUC@1cm ADD / calibration after 15 frames: 600
 # points 74.26 / 2.0 mm, 2000 78.94 / 1.54 mm, 5000 81.88 / 1.45 mm, 12000 84.27 / 1.45 mm)
 # The refinement's solves (OptimizeOptions) stop once a step promises less than MIN_DECREASE of the cost
-# (b882845; 1e-5 and 1e-4 took 28.4 and 26.8 against 29.7 ms/frame and moved poses: docs/results.md, sixth
+# (b882845; 1e-5 and 1e-4 took 28.4 and 26.8 against 29.7 ms/frame and moved poses: docs/history.md, eighth
 # step), or once a step that failed moves the pose less than MIN_STEP (rad and m: 1 um at the model; 6064148:
 # 395 of 1701 solves had raised the damping from 1e-7 past 1e8 with their steps below 1 um after 4-6 trials,
-# docs/results.md, tenth step). Each solve takes at most SOLVE_ITERATIONS steps; a stage's rounds of contour
+# docs/history.md, tenth step). Each solve takes at most SOLVE_ITERATIONS steps; a stage's rounds of contour
 # extraction and solve end once a solve moves the calibration less than ROUND_MOVED_M, and depth alignment's
 # rounds once one moves it less than ICP_MOVED_M (set with the refinement, fcb078c, and with depth alignment,
 # 7d2aed9; no measurement of these three is recorded).
@@ -197,9 +197,9 @@ def describe(opts: FeepeOptions, backbone) -> dict:
         out.pop("silhouette_refit_growth")
     if opts.given_masks == "truth":  # likewise
         out.pop("given_masks")
-    if opts.refine != "none":  # the refinement's estimates changed with the rasteriser (results.md, sixth
+    if opts.refine != "none":  # the refinement's estimates changed with the rasteriser (history.md, sixth
         out["silhouette_renderer"] = RENDERER  # step): a run stored before it is not resumed by this code
-    if opts.depth_in_refinement:  # so did its choice among descents, with depth (results.md, eleventh step)
+    if opts.depth_in_refinement:  # so did its choice among descents, with depth (history.md, eleventh step)
         out["silhouette_choice"] = CHOICE
     return {**out, "backbone": backbone.options()}
 

@@ -105,7 +105,7 @@ class Feepe:
         """With no mask given the estimator finds and segments the robot itself, so it fits the robot's
         outline (the refinement on, `silhouette robot`: the arm's meshes from the URDF), as with
         `--given-masks prior`; unless a refinement was chosen, with depth where there is depth (six seed-0
-        segments per depth, no mask: exact 91.34 -> 98.80 ADD, stereo 33.33 -> 40.56; results.md)."""
+        segments per depth, no mask: exact 91.34 -> 98.80 ADD, stereo 33.33 -> 40.56; history.md)."""
         if masks and self.opts.given_masks == "truth":
             return
         refine = self.opts.refine if self._refine_chosen else "silhouette+depth" if depth else "silhouette"
