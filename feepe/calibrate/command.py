@@ -1,6 +1,7 @@
 """`python -m feepe calibrate RECORDING ...` (console script `feepe calibrate`): a recording in, the
 camera-to-base transform out in the forms a robot stack loads, with per-frame residuals, an uncertainty
-and a verdict. Nothing is written unless the whole run succeeds. docs/calibrate.md is the user's guide."""
+and a verdict. A recording the command cannot use writes nothing; a run that finds the robot in no frame
+writes only frames.csv and calibration.json (no transform). docs/calibrate.md is the user's guide."""
 
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from feepe.calibrate.outputs import Frames, as_handeye_yaml, as_json, as_static_
 from feepe.calibrate.recording import Recording, thinned
 from feepe.calibrate.robot import UrdfRobot
 from feepe.calibrate.solve import MASKS, Solve, SolveSettings, check, solve
-from feepe.calibrate.uncertainty import MIN_FRAMES, estimate
+from feepe.calibrate.uncertainty import estimate
 from feepe.calibrate.verdict import judge
 from kernel.cli import output_dir, run_command
 from kernel.errors import UserError
@@ -137,26 +138,25 @@ def summary(result: Solve) -> dict:
     """The calibration, its uncertainty at the workspace and the verdict, as calibration.json carries them."""
     estimated = [f for f in result.frames if f.T_cam_base is not None]
     T_base_ee = np.stack([f.T_base_ee for f in result.frames])
-    points = T_base_ee[:, :3, 3]
+
     def median(key: str) -> float:
         values = [getattr(f, key) for f in estimated if np.isfinite(getattr(f, key))]
         return float(np.median(values)) if values else float("nan")
 
-    uncertainty = estimate([f.T_cam_base for f in estimated], result.T_cam_base, points, median("depth_mm"),
-                           median("pixel_mm"))
+    uncertainty = estimate([f.T_cam_base for f in estimated], result.T_cam_base, T_base_ee[:, :3, 3],
+                           median("depth_mm"), median("pixel_mm"))
     verdict = judge(len(result.frames), len(estimated), median("outline_px"), median("depth_agree"), uncertainty,
                     T_base_ee)
-    return _json_safe({"frames": len(result.frames), "estimated_frames": len(estimated),
-            "key_frames": [f.name for f in result.frames if f.key_frame],
-            "median_outline_px": median("outline_px"), "median_outline_mm": median("outline_mm"),
-            "median_depth_mm": median("depth_mm"), "median_pixel_mm": median("pixel_mm"),
-            "median_depth_agree": median("depth_agree"),
-            "uncertainty": {"two_sigma_mm": 2 * uncertainty.sigma_mm, "scatter_two_sigma_deg": 2 * uncertainty.sigma_deg,
-                            "scatter_sigma_mm": uncertainty.scatter_mm, "shared_sigma_mm": uncertainty.shared_mm,
-                            "at": "the end-effector's recorded positions (mean displacement)",
-                            "over_frames": uncertainty.frames},
-            "verdict": verdict.word, "verdict_line": verdict.line(),
-            "ms_per_frame": float(np.mean([f.ms for f in result.frames]))})
+    bound = {"two_sigma_mm": 2 * uncertainty.sigma_mm, "scatter_two_sigma_deg": 2 * uncertainty.sigma_deg,
+             "scatter_sigma_mm": uncertainty.scatter_mm, "shared_sigma_mm": uncertainty.shared_mm,
+             "at": "the end-effector's recorded positions (mean displacement)", "over_frames": uncertainty.frames,
+             "not_stated_because": uncertainty.missing}
+    return _json_safe({
+        "frames": len(result.frames), "estimated_frames": len(estimated),
+        "key_frames": [f.name for f in result.frames if f.key_frame],
+        **{f"median_{key}": median(key) for key in ("outline_px", "outline_mm", "depth_mm", "pixel_mm", "depth_agree")},
+        "uncertainty": bound, "verdict": verdict.word, "verdict_line": verdict.line(),
+        "ms_per_frame": float(np.mean([f.ms for f in result.frames]))})
 
 
 def _json_safe(value):
@@ -182,13 +182,13 @@ def write_outputs(args, robot: UrdfRobot, recording: Recording, result: Solve,
     frames = Frames(robot.base_link, args.camera_frame, robot.ee_link)
     write_json(out / "calibration.json", as_json(T, frames, {"source": recording.source, "sync": recording.sync,
                                                             **found, "estimator": result.options}))
-    write_atomic(out / "easy_handeye2.yaml", as_handeye_yaml(T, frames, args.recording.stem).encode())
+    write_atomic(out / "easy_handeye2.yaml", as_handeye_yaml(T, frames, args.out.resolve().name).encode())
     write_atomic(out / "static_transform_publisher.sh", as_static_transform_publisher(T, frames).encode())
     write_atomic(out / "camera_joint.urdf.xml", as_urdf_joint(T, frames).encode())
     t = T[:3, 3]
     bound = found["uncertainty"]
-    told = (" (no uncertainty stated: " + ("too few frames" if bound["over_frames"] < MIN_FRAMES else "no depth") + ")"
-            if bound["two_sigma_mm"] is None else f" +- {bound['two_sigma_mm']:.2f} mm (2 sigma, at the workspace)")
+    told = (f" (no uncertainty stated: {bound['not_stated_because']})" if bound["two_sigma_mm"] is None
+            else f" +- {bound['two_sigma_mm']:.2f} mm (2 sigma, at the workspace)")
     lines = [f"T_base_camera ({robot.base_link} -> {args.camera_frame}): t = [{t[0]:.4f}, {t[1]:.4f}, {t[2]:.4f}] m{told}",
              f"{found['estimated_frames']}/{found['frames']} frames estimated, outline "
              f"{_told(found['median_outline_px'], 'px')}, depth {_told(found['median_depth_mm'], 'mm')} (medians)",

@@ -33,6 +33,15 @@ class Uncertainty:
     scatter_mm: float  # its parts
     shared_mm: float
 
+    @property
+    def missing(self) -> str | None:
+        """Why no bound is stated, if none is."""
+        if self.frames < MIN_FRAMES:
+            return f"{self.frames} calibrations in the second half of the estimated frames, {MIN_FRAMES} needed"
+        if not np.isfinite(self.shared_mm):
+            return "no depth residual or robot outline to judge the shared error by (RGB only, or flange poses)"
+        return None
+
 
 def displacement_mm(T_a: np.ndarray, T_b: np.ndarray, points: np.ndarray) -> float:
     """Mean distance (mm) by which a point seen by the camera lands apart in the base under T_a and T_b

@@ -61,7 +61,7 @@ def judge(n_frames: int, n_estimated: int, outline_px: float, depth_agree: float
     if spread[0] < STILL_SPREAD_M and turn < STILL_TURN_DEG:
         return Verdict("TOO LITTLE MOTION", advice)
     if not 2 * uncertainty.sigma_mm <= MAX_TWO_SIGMA_MM:  # nan too: too few frames to say
-        told = ("no bound (too few estimated frames, or no depth)" if np.isnan(uncertainty.sigma_mm)
+        told = (f"no bound ({uncertainty.missing})" if np.isnan(uncertainty.sigma_mm)
                 else f"2-sigma {2 * uncertainty.sigma_mm:.1f} mm")
         return Verdict("UNCERTAIN", [f"{told} (> {MAX_TWO_SIGMA_MM:g} mm wanted): record more frames with the "
                                      "arm moving through the workspace", *advice])
