@@ -234,7 +234,7 @@ def _plan_templates(args) -> Phase:
     from kernel.dataset import Dataset
     from kernel.template_set import check_recipe
     from syneepose import paths
-    from syneepose.jobs import TemplateJob, run_template_job, templates_done
+    from syneepose.jobs import TemplateJob, run_template_job, templates_done, write_own_model
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
 
@@ -242,13 +242,20 @@ def _plan_templates(args) -> Phase:
     catalog = load_catalog()
     settings = templates_with(load_preset(args.preset), {"views": args.views, "inplane": args.inplane,
                                                          "resolution": args.resolution, "samples": args.samples})
-    names = catalog.parse_end_effectors(args.ee)
     out = Path(args.out)
+    own = _own_end_effector(args)
+    names = [own["ee"]] if own else catalog.parse_end_effectors(args.ee)
     _writable(out)
     assets = paths.assets_dir()
-    build_assets(assets, [f"panda+{n}" for n in names], log=lambda *_: None)
+    if not own:
+        build_assets(assets, [f"panda+{n}" for n in names], log=lambda *_: None)
     jobs = [TemplateJob(n, str(out), settings.views, settings.inplane, settings.resolution, settings.samples,
-                          str(assets), args.device, args.inplane_by, _threads(args)) for n in names]
+                        str(assets), args.device, args.inplane_by, _threads(args), **(own and {k: v for k, v in own.items()
+                                                                                             if k != "ee"}))
+            for n in names]
+    if own:
+        model_path = write_own_model(jobs[0], Dataset(out).models_dir)
+        print(f"templates: the end-effector's model (mm, in {args.ee_link}'s frame) in {model_path}")
     done_before = {j: templates_done(j) for j in jobs}
     for job in jobs:
         check_recipe(job.folder, job.samples, job.inplane_by, done_before[job] >= job.frames)
@@ -256,6 +263,23 @@ def _plan_templates(args) -> Phase:
     return Phase("templates", "template", run_template_job, jobs, done_before,
                  per_render / settings.inplane if args.inplane_by == "rotated" else per_render, lambda: None,
                  f"templates: {len(jobs)} end-effectors in {Dataset(out).templates_dir}")
+
+
+def _own_end_effector(args) -> dict:
+    """--urdf and --ee-link: a user's end-effector, the part of their URDF below that link."""
+    if args.urdf is None and args.ee_link is None:
+        if args.name or args.mesh_dir:
+            raise UserError("--name and --mesh-dir go with --urdf and --ee-link (a URDF's end-effector)")
+        return {}
+    if args.urdf is None or args.ee_link is None:
+        raise UserError("give both --urdf and --ee-link: the robot's URDF and the link the end-effector starts at")
+    if args.ee is not None:
+        raise UserError("--ee names SynEEPose's end-effectors; with --urdf and --ee-link use --name for the set")
+    name = args.name or args.ee_link
+    if not name.replace("_", "").replace("-", "").isalnum():
+        raise UserError(f"--name {name!r}: use letters, digits, - and _ (it names the template folder)")
+    return {"ee": name, "urdf": str(Path(args.urdf).resolve()), "ee_link": args.ee_link,
+            "mesh_dir": str(Path(args.mesh_dir).resolve()) if args.mesh_dir else ""}
 
 
 def _templates(args) -> None:
@@ -323,6 +347,11 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--samples", type=int, help="Cycles samples per pixel")
     t.add_argument("--inplane-by", choices=INPLANE_BY, default="rotated",
                    help="in-plane rotations rolled from each view's one render (default), or each rendered")
+    t.add_argument("--urdf", help="your robot's URDF: render the end-effector below --ee-link instead of --ee "
+                   "(also writes its model, OUT/models/NAME.ply, for feepe calibrate --model)")
+    t.add_argument("--ee-link", help="with --urdf: the link the end-effector starts at (its frame is the model's)")
+    t.add_argument("--name", help="with --urdf: the template set's name (default: the --ee-link)")
+    t.add_argument("--mesh-dir", help="with --urdf: where package:// mesh paths start (default: beside the URDF)")
     _add_execution(t)
     t.set_defaults(func=_templates)
     s = sub.add_parser("show", help="contact sheet of a data set and a sheet per template set (PNG)")

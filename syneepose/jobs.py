@@ -23,9 +23,11 @@ from kernel.errors import UserError
 from kernel.files import write_json
 from kernel.template_set import INDEX
 from kernel.transforms import inv_T
+from kernel.urdf import mesh_path
 from syneepose import __version__, paths, scene_ids
 from syneepose.preset import Preset, load_preset
 from syneepose.robots.catalog import load_catalog
+from syneepose.robots.model import RobotModel, read_urdf, read_urdf_below
 from syneepose.scene.spec import RenderSettings
 
 NAME = "syneepose"  # the BOP data set name of result files: METHOD_syneepose-test.csv
@@ -198,6 +200,9 @@ class TemplateJob:
     device: str = "cpu"
     inplane_by: str = "rotated"  # templates.INPLANE_BY
     threads: int = 0  # Cycles CPU threads; 0: all cores
+    urdf: str = ""  # a user's end-effector: the robot's URDF, `ee` the name of its set, `ee_link` its root link
+    ee_link: str = ""
+    mesh_dir: str = ""
 
     @property
     def folder(self) -> Path:
@@ -220,11 +225,34 @@ def templates_done(job: TemplateJob) -> int:
 def run_template_job(job: TemplateJob) -> int:
     from syneepose.blender.templates import render_templates
 
-    ee = load_catalog().end_effector(job.ee)
+    model, urdf_dir, canonical, obj_id = template_model(job)
     with _quiet_stdout():
-        return render_templates(ee, paths.part_urdf(job.ee, Path(job.assets)), job.folder, job.views, job.inplane,
-                                job.resolution, job.samples, job.device, inplane=job.inplane_by,
-                                threads=job.threads)
+        return render_templates(model, urdf_dir, canonical, obj_id, job.folder, job.views, job.inplane,
+                                job.resolution, job.samples, job.device, inplane=job.inplane_by, threads=job.threads)
+
+
+def template_model(job: TemplateJob) -> tuple[RobotModel, Path, dict[str, float], int]:
+    """What a template job renders: a catalogue end-effector's part URDF at its canonical configuration, or
+    the part of a user's URDF below their end-effector link at zero joint values (object id 1)."""
+    if job.urdf:
+        urdf = Path(job.urdf)
+        resolve = lambda name: mesh_path(name, urdf, Path(job.mesh_dir) if job.mesh_dir else None)
+        return read_urdf_below(urdf, job.ee_link, resolve), Path("/"), {}, 1
+    ee = load_catalog().end_effector(job.ee)
+    part = paths.part_urdf(job.ee, Path(job.assets))
+    return read_urdf(part), part.parent, dict(ee.canonical), ee.obj_id
+
+
+def write_own_model(job: TemplateJob, models_dir: Path) -> Path:
+    """A user's end-effector as a BOP model (mm, outward normals, vertex colours) beside its templates:
+    `models_dir/<name>.ply`, the --model of feepe calibrate."""
+    from syneepose.robots.ee_models import orient_outward, rigid_mesh, write_ply_mm
+
+    model, urdf_dir, canonical, _ = template_model(job)
+    models_dir.mkdir(parents=True, exist_ok=True)
+    path = models_dir / f"{job.ee}.ply"
+    write_ply_mm(orient_outward(rigid_mesh(model, urdf_dir, canonical)), path)
+    return path
 
 
 def write_dataset_info(out: Path, plan: Plan, assets: Path) -> None:

@@ -86,3 +86,32 @@ def test_a_set_is_not_resumed_the_other_way(both_sets, tmp_path):
                            "16"], capture_output=True, text=True)
     assert proc.returncode == 2 and "--inplane-by rendered" in proc.stderr and "Traceback" not in proc.stderr
     assert len(read_index(folder)) == 5
+
+
+def test_a_users_urdf_gives_the_templates_and_model_of_its_end_effector(both_sets, assets, tmp_path):
+    """`templates --urdf --ee-link`: the part of a robot's URDF below a link, rendered as a user's own
+    end-effector. On the assembled UR5e + 2F-85 URDF below ee_mount it is the catalogue's 2F-85: the same
+    template poses and images, and the same BOP model (feepe calibrate's --model)."""
+    import trimesh
+
+    _, catalogue = both_sets
+    urdf = assets / "robots" / "ur5e+robotiq_2f85.urdf"
+    args = [sys.executable, "-m", "syneepose", "templates", "--out", str(tmp_path), "--urdf", str(urdf), "--ee-link",
+            "ee_mount", "--name", "my_gripper", "--views", str(VIEWS), "--inplane", str(INPLANE), "--resolution",
+            str(RES), "--samples", "16"]
+    proc = subprocess.run(args, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    own = set_dir(tmp_path, "my_gripper", VIEWS, INPLANE, RES)
+    for key in read_index(catalogue):
+        a, b = read_template(catalogue, int(key)), read_template(own, int(key))
+        np.testing.assert_allclose(a.T_cam_model, b.T_cam_model)
+        assert (a.mask == b.mask).mean() >= 0.999 and cv2.PSNR(a.rgb, b.rgb) >= 40.0
+    model = trimesh.load(tmp_path / "models" / "my_gripper.ply")
+    reference = trimesh.load(assets / "models" / "obj_000002.ply")
+    assert np.array_equal(np.sort(model.vertices, 0), np.sort(reference.vertices, 0))
+    for bad, words in ((["--ee-link", "tool0"], "--ee-link 'tool0' is not a link of"),
+                       (["--ee", "robotiq_2f85"], "with --urdf and --ee-link use --name")):
+        cmd = args[:args.index("--ee-link")] + bad + (["--ee-link", "ee_mount"] if "--ee" in bad else [])
+        proc = subprocess.run(cmd + ["--out", str(tmp_path / "bad")], capture_output=True, text=True)
+        assert proc.returncode == 2 and words in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+        assert not (tmp_path / "bad" / "templates").exists()

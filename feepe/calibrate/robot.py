@@ -13,6 +13,7 @@ import yourdfpy
 
 from kernel.errors import UserError
 from kernel.transforms import inv_T
+from kernel.urdf import mesh_path
 
 
 @dataclass
@@ -30,7 +31,7 @@ class UrdfRobot:
         urdf = Path(urdf)
         if not urdf.is_file():
             raise UserError(f"no URDF at {urdf}: pass --urdf with the robot's URDF file")
-        self.urdf, self.mesh_dir = urdf, Path(mesh_dir) if mesh_dir else urdf.parent
+        self.urdf, self.mesh_dir = urdf, mesh_dir
         try:
             self.model = yourdfpy.URDF.load(str(urdf), build_scene_graph=True, load_meshes=False,
                                             filename_handler=self._mesh_path)
@@ -50,16 +51,7 @@ class UrdfRobot:
         self.arm_joints = [name for name in self.model.actuated_joint_names if name in movers]
 
     def _mesh_path(self, name: str) -> str:
-        """package://pkg/path and file:// names as the folders a user has them in."""
-        for prefix in ("package://", "file://"):
-            if name.startswith(prefix):
-                rest = name[len(prefix):]
-                candidates = [Path(rest), self.mesh_dir / rest, self.mesh_dir / rest.split("/", 1)[-1]]
-                return str(next((p for p in candidates if p.is_file()), candidates[1]))
-        if Path(name).is_absolute():
-            return name
-        beside = self.urdf.parent / name
-        return str(beside if beside.is_file() else self.mesh_dir / name)
+        return str(mesh_path(name, self.urdf, self.mesh_dir))
 
     def _below(self, link: str) -> set[str]:
         out, frontier = {link}, [link]

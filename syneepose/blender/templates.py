@@ -13,19 +13,18 @@ from syneepose.blender import scene as bscene
 from syneepose.blender.exr import linear_to_srgb8
 from syneepose.robots.ee_models import rigid_mesh
 from syneepose.robots.kinematics import Kinematics
-from syneepose.robots.model import read_urdf
+from syneepose.robots.model import RobotModel
 
 
-def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane: int, resolution: int,
-                     samples: int, device: str = "cpu", progress=None, inplane: str = "rotated",
-                     threads: int = 0) -> int:
-    """Render the templates not yet on disk; returns how many were written. `inplane="rotated"` renders each
-    view once and rolls the images for its in-plane rotations (roll_template); "rendered" renders every
-    template, the reference the rotation is tested against."""
-    writer = TemplateSetWriter(folder, ee.obj_id, samples, inplane)
-    model = read_urdf(part_urdf)
-    canonical = dict(ee.canonical)
-    mesh = rigid_mesh(model, Path(part_urdf).parent, canonical)
+def render_templates(model: RobotModel, urdf_dir: Path, canonical: dict[str, float], obj_id: int, folder: Path,
+                     n_views: int, n_inplane: int, resolution: int, samples: int, device: str = "cpu",
+                     progress=None, inplane: str = "rotated", threads: int = 0) -> int:
+    """Render the templates not yet on disk of the end-effector `model` (its links' meshes named relative to
+    `urdf_dir`, posed at `canonical`); returns how many were written. `inplane="rotated"` renders each view
+    once and rolls the images for its in-plane rotations (roll_template); "rendered" renders every template,
+    the reference the rotation is tested against."""
+    writer = TemplateSetWriter(folder, obj_id, samples, inplane)
+    mesh = rigid_mesh(model, urdf_dir, canonical)
     centre = mesh.bounds.mean(0)
     radius = float(np.linalg.norm(mesh.vertices - centre, axis=1).max())
     K = intrinsics(resolution)
@@ -36,7 +35,7 @@ def render_templates(ee, part_urdf: Path, folder: Path, n_views: int, n_inplane:
     bscene.reset(resolution, resolution, samples, denoise=samples >= 4, world_color=(1.0, 1.0, 1.0),
                  world_strength=1.0, transparent=True, device=device, threads=threads)
     bscene.set_camera(K, resolution, resolution, np.eye(4))
-    objects = bscene.RobotObjects(model, Path(part_urdf).parent, {lk.name for lk in model.links})
+    objects = bscene.RobotObjects(model, Path(urdf_dir), {lk.name for lk in model.links})
     objects.pose(Kinematics(model).link_poses(canonical))
     unrolled = {v: pose for _, (v, k, pose) in planned if k == 0}
     for view, planned_view in groupby(todo, key=lambda t: t[1]):

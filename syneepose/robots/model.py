@@ -133,42 +133,84 @@ def write_urdf(model: RobotModel, path: Path) -> None:
 
 def read_urdf(path: Path, check_meshes: bool = True) -> RobotModel:
     """Parse with yourdfpy (kinematics and visuals only) into a RobotModel."""
-    import yourdfpy
-
     path = Path(path)
     if not path.is_file():
         raise UserError(f"URDF {path} does not exist: build the robot assets with `make assets`")
-    try:
-        urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False)
-    except Exception as exc:  # yourdfpy raises bare lxml / ValueError types
-        raise UserError(f"URDF {path} cannot be parsed ({exc}): rebuild it with `make assets`") from exc
+    urdf = _load(path, "rebuild it with `make assets`")
+    links = [Link(ul.name, [_visual(uv, ul.name, path, _mesh_beside(uv, path) if check_meshes else None,
+                                    "rebuild with `make assets`") for uv in ul.visuals]) for ul in urdf.robot.links]
+    return RobotModel(urdf.robot.name, links, [_joint(uj, path) for uj in urdf.robot.joints])
+
+
+def read_urdf_below(path: Path, root_link: str, mesh_path) -> RobotModel:
+    """The part of a user's URDF from `root_link` down (an end-effector), rooted there, with every mesh path
+    absolute as `mesh_path(filename)` resolves it (package:// paths); visuals of other links are not read."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"no URDF at {path}: pass --urdf with the robot's URDF file")
+    urdf = _load(path, "check the file")
+    names = [ul.name for ul in urdf.robot.links]
+    if root_link not in names:
+        raise UserError(f"--ee-link {root_link!r} is not a link of {path.name}; its links: {', '.join(names)}")
+    below, frontier = {root_link}, [root_link]
+    while frontier:
+        parent = frontier.pop()
+        for uj in urdf.robot.joints:
+            if uj.parent == parent and uj.child not in below:
+                below.add(uj.child)
+                frontier.append(uj.child)
     links = []
     for ul in urdf.robot.links:
-        visuals = []
-        for uv in ul.visuals:
-            if uv.geometry is None or uv.geometry.mesh is None:
-                raise UserError(f"URDF {path}: link {ul.name!r} has a non-mesh visual; only meshes are supported")
-            mesh = uv.geometry.mesh.filename
-            if check_meshes and not (path.parent / mesh).is_file():
-                raise UserError(
-                    f"URDF {path}: mesh {mesh!r} of link {ul.name!r} is missing: rebuild with `make assets`"
-                )
-            rgba = (0.7, 0.7, 0.7, 1.0)
-            if uv.material is not None and uv.material.color is not None:
-                rgba = tuple(float(c) for c in uv.material.color.rgba)
-            origin = np.eye(4) if uv.origin is None else np.asarray(uv.origin, dtype=float)
-            visuals.append(Visual(mesh, origin, rgba, uv.name or ""))
-        links.append(Link(ul.name, visuals))
-    joints = []
-    for uj in urdf.robot.joints:
-        if uj.type not in JOINT_TYPES:
-            raise UserError(f"URDF {path}: joint {uj.name!r} has unsupported type {uj.type!r}")
-        mimic = None if uj.mimic is None else Mimic(uj.mimic.joint, float(uj.mimic.multiplier or 1.0),
-                                                    float(uj.mimic.offset or 0.0))
-        lower = upper = None
-        if uj.limit is not None and uj.type in ("revolute", "prismatic"):
-            lower, upper = float(uj.limit.lower), float(uj.limit.upper)
-        axis = np.array([1.0, 0.0, 0.0]) if uj.axis is None else np.asarray(uj.axis, dtype=float)
-        origin = np.eye(4) if uj.origin is None else np.asarray(uj.origin, dtype=float)
-        joints.append(Joint(uj.name, uj.type, uj.parent, uj.child, origin, axis, lower, upper, mimic))
-    return RobotModel(urdf.robot.name, links, joints)
+        if ul.name in below:
+            visuals = []
+            for uv in ul.visuals:
+                mesh = Path(mesh_path(uv.geometry.mesh.filename)) if _has_mesh(uv) else None
+                visual = _visual(uv, ul.name, path, mesh, "pass --mesh-dir with the folder package:// paths start from")
+                visuals.append(replace(visual, mesh=str(mesh)))
+            links.append(Link(ul.name, visuals))
+    joints = [_joint(uj, path) for uj in urdf.robot.joints if uj.parent in below and uj.child in below]
+    return RobotModel(f"{urdf.robot.name}_{root_link}", links, joints)
+
+
+def _load(path: Path, mend: str):
+    import yourdfpy
+
+    try:
+        return yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False)
+    except Exception as exc:  # yourdfpy raises bare lxml / ValueError types
+        raise UserError(f"URDF {path} cannot be parsed ({exc}): {mend}") from exc
+
+
+def _has_mesh(uv) -> bool:
+    return uv.geometry is not None and uv.geometry.mesh is not None
+
+
+def _mesh_beside(uv, path: Path) -> Path | None:
+    return path.parent / uv.geometry.mesh.filename if _has_mesh(uv) else None
+
+
+def _visual(uv, link: str, path: Path, mesh_file: Path | None, mend: str) -> Visual:
+    """`mesh_file`: where the mesh must be (None: not checked)."""
+    if not _has_mesh(uv):
+        raise UserError(f"URDF {path}: link {link!r} has a non-mesh visual; only meshes are supported")
+    if mesh_file is not None and not Path(mesh_file).is_file():
+        raise UserError(f"URDF {path}: mesh {uv.geometry.mesh.filename!r} of link {link!r} is missing (looked at "
+                        f"{mesh_file}): {mend}")
+    rgba = (0.7, 0.7, 0.7, 1.0)
+    if uv.material is not None and uv.material.color is not None:
+        rgba = tuple(float(c) for c in uv.material.color.rgba)
+    origin = np.eye(4) if uv.origin is None else np.asarray(uv.origin, dtype=float)
+    return Visual(uv.geometry.mesh.filename, origin, rgba, uv.name or "")
+
+
+def _joint(uj, path: Path) -> Joint:
+    if uj.type not in JOINT_TYPES:
+        raise UserError(f"URDF {path}: joint {uj.name!r} has unsupported type {uj.type!r}")
+    mimic = None if uj.mimic is None else Mimic(uj.mimic.joint, float(uj.mimic.multiplier or 1.0),
+                                                float(uj.mimic.offset or 0.0))
+    lower = upper = None
+    if uj.limit is not None and uj.type in ("revolute", "prismatic"):
+        lower, upper = float(uj.limit.lower), float(uj.limit.upper)
+    axis = np.array([1.0, 0.0, 0.0]) if uj.axis is None else np.asarray(uj.axis, dtype=float)
+    origin = np.eye(4) if uj.origin is None else np.asarray(uj.origin, dtype=float)
+    return Joint(uj.name, uj.type, uj.parent, uj.child, origin, axis, lower, upper, mimic)
