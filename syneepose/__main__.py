@@ -249,10 +249,9 @@ def _plan_templates(args) -> Phase:
     assets = paths.assets_dir()
     if not own:
         build_assets(assets, [f"panda+{n}" for n in names], log=lambda *_: None)
+    source = {key: value for key, value in own.items() if key != "ee"}  # the user's URDF, if any
     jobs = [TemplateJob(n, str(out), settings.views, settings.inplane, settings.resolution, settings.samples,
-                        str(assets), args.device, args.inplane_by, _threads(args), **(own and {k: v for k, v in own.items()
-                                                                                             if k != "ee"}))
-            for n in names]
+                        str(assets), args.device, args.inplane_by, _threads(args), **source) for n in names]
     if own:
         model_path = write_own_model(jobs[0], Dataset(out).models_dir)
         print(f"templates: the end-effector's model (mm, in {args.ee_link}'s frame) in {model_path}")
