@@ -200,6 +200,26 @@ def test_ros1_and_sqlite3_bags_read_as_the_mcap_one(tiny_dataset, tmp_path):
             assert np.array_equal(a.K, b.K) and a.joints == b.joints
 
 
+def test_a_folder_takes_joint_states_as_csv_or_json(tmp_path):
+    """The same frames with the joints in joint_states.csv or joint_states.json read the same."""
+    import cv2
+
+    from feepe.calibrate.folder import read_folder
+
+    (tmp_path / "rgb").mkdir()
+    cv2.imwrite(str(tmp_path / "rgb" / "a.png"), np.zeros((4, 6, 3), np.uint8))
+    (tmp_path / "camera_info.yaml").write_text("k: [5, 0, 3, 0, 5, 2, 0, 0, 1]\n")
+    (tmp_path / "joint_states.csv").write_text("frame,j1,j2\na,0.5,-1\n")
+    from_csv = next(read_folder(tmp_path).read())
+    (tmp_path / "joint_states.csv").unlink()
+    (tmp_path / "joint_states.json").write_text(json.dumps({"a": {"j1": 0.5, "j2": -1}}))
+    from_json = next(read_folder(tmp_path).read())
+    assert from_csv.joints == from_json.joints == {"j1": 0.5, "j2": -1.0} and from_json.depth is None
+    (tmp_path / "joint_states.json").write_text(json.dumps({"b": {"j1": 0.5}}))
+    with pytest.raises(UserError, match="no row for frame"):
+        read_folder(tmp_path)
+
+
 def _one_line_nothing_written(proc, out: Path, words: str) -> None:
     assert proc.returncode == 2, proc.stderr[-2000:]
     lines = proc.stderr.strip().splitlines()

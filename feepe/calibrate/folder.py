@@ -7,6 +7,7 @@
                                           or 32-bit float TIFF in metres (optional: an RGB camera)
     masks/<frame>.png                     the end-effector's mask, nonzero inside (optional)
     joint_states.csv                      a header `frame,<joint name>,...`, one row per frame (rad, m)
+    joint_states.json                     or {"<frame>": {"<joint name>": position, ...}}
     flange_poses.json                     or {"<frame>": 4x4 pose of the end-effector link in the base, m}
 """
 
@@ -35,12 +36,11 @@ def read_folder(root: Path) -> Recording:
     images = {p.stem: p for p in sorted((root / "rgb").glob("*")) if p.suffix.lower() in IMAGE_SUFFIXES}
     if not images:
         raise UserError(f"{root / 'rgb'}: no colour images (.png, .jpg); see docs/calibrate.md for a recording's folder")
-    joints, poses = _robot_states(root)
+    joints, poses, source = _robot_states(root)
     known = set(joints or poses)
     missing = [name for name in images if name not in known]
     if missing:
-        source = "joint_states.csv" if joints is not None else "flange_poses.json"
-        raise UserError(f"{root / source}: no row for frame(s) {', '.join(missing[:5])}"
+        raise UserError(f"{source}: no row for frame(s) {', '.join(missing[:5])}"
                         f"{' ...' if len(missing) > 5 else ''}; give the robot's state for every image in rgb/")
     has_depth = (root / "depth").is_dir()
 
@@ -74,7 +74,8 @@ def _camera_info(root: Path) -> dict:
     raise UserError(f"{root}: no camera_info.yaml or camera_info.json with the intrinsics")
 
 
-def _robot_states(root: Path) -> tuple[dict | None, dict | None]:
+def _robot_states(root: Path) -> tuple[dict | None, dict | None, Path]:
+    """Joint positions or flange poses by frame name, and the file they came from."""
     csv_path, json_path = root / "joint_states.csv", root / "flange_poses.json"
     if csv_path.is_file():
         with csv_path.open(newline="") as f:
@@ -82,9 +83,17 @@ def _robot_states(root: Path) -> tuple[dict | None, dict | None]:
         if not rows or "frame" not in rows[0]:
             raise UserError(f"{csv_path}: expected a header `frame,<joint name>,...` and one row per frame")
         try:
-            return {row["frame"]: {k: float(v) for k, v in row.items() if k != "frame"} for row in rows}, None
+            return {row["frame"]: {k: float(v) for k, v in row.items() if k != "frame"} for row in rows}, None, csv_path
         except (TypeError, ValueError) as exc:
             raise UserError(f"{csv_path}: a joint position is not a number ({exc})") from None
+    joints_json = root / "joint_states.json"
+    if joints_json.is_file():
+        try:
+            found = json.loads(joints_json.read_text())
+            return ({str(name): {k: float(v) for k, v in joints.items()} for name, joints in found.items()}, None,
+                    joints_json)
+        except (ValueError, TypeError, AttributeError) as exc:
+            raise UserError(f"{joints_json}: expected {{\"<frame>\": {{\"<joint>\": position}}}} ({exc})") from None
     if json_path.is_file():
         try:
             poses = {name: np.asarray(T, float) for name, T in json.loads(json_path.read_text()).items()}
@@ -93,8 +102,9 @@ def _robot_states(root: Path) -> tuple[dict | None, dict | None]:
         bad = [name for name, T in poses.items() if T.shape != (4, 4)]
         if bad:
             raise UserError(f"{json_path}: frame {bad[0]} is not a 4x4 matrix")
-        return None, poses
-    raise UserError(f"{root}: no joint_states.csv (or flange_poses.json): the robot's state per frame is needed")
+        return None, poses, json_path
+    raise UserError(f"{root}: no joint_states.csv, joint_states.json or flange_poses.json: the robot's state per "
+                    "frame is needed")
 
 
 def _depth(folder: Path, name: str, scale: float) -> np.ndarray:
