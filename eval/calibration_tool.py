@@ -18,15 +18,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from eval.metrics import calibration_error
 from eval.recordings import write_bag
-from feepe.calibrate.uncertainty import displacement_mm
 from kernel.bop import read_scene, scene_dirs, split_dir
 from kernel.cli import output_dir, run_command
 from kernel.dataset import TEMPLATES, Dataset
 from kernel.errors import UserError
 from kernel.files import write_atomic
 from kernel.template_set import find_template_set
-from kernel.transforms import inv_T, rotation_angle
+from kernel.transforms import inv_T
 
 FIELDS = ("scene_id", "config", "frames", "estimated", "error_mm", "camera_mm", "camera_deg", "two_sigma_mm",
           "covered", "verdict", "ms_per_frame")
@@ -57,13 +57,11 @@ def score_segment(scene_dir: Path, templates_root: Path, out: Path, exact_depth:
            "estimated": found["estimated_frames"], "verdict": found["verdict"], "ms_per_frame": found["ms_per_frame"]}
     if "T_base_camera" not in found:
         return row
-    T_cam_base, truth = inv_T(np.array(found["T_base_camera"])), np.array(robot["T_cam_base"])
     points = np.array([np.array(f["T_base_ee"])[:3, 3] for f in robot["frames"].values()])
-    error = displacement_mm(T_cam_base, truth, points)
-    two_sigma = found["uncertainty"]["two_sigma_mm"]
-    return {**row, "error_mm": error, "camera_mm": 1e3 * np.linalg.norm(T_cam_base[:3, 3] - truth[:3, 3]),
-            "camera_deg": float(np.degrees(rotation_angle(T_cam_base[:3, :3], truth[:3, :3]))),
-            "two_sigma_mm": two_sigma, "covered": None if two_sigma is None else bool(two_sigma >= error)}
+    error = calibration_error(inv_T(np.array(found["T_base_camera"])), np.array(robot["T_cam_base"]), points)
+    error_mm, two_sigma = float(error.points_mm.mean()), found["uncertainty"]["two_sigma_mm"]
+    return {**row, "error_mm": error_mm, "camera_mm": float(error.trans_mm[0]), "camera_deg": float(error.rot_deg[0]),
+            "two_sigma_mm": two_sigma, "covered": None if two_sigma is None else bool(two_sigma >= error_mm)}
 
 
 def summary(rows: list[dict], title: str) -> str:

@@ -5,15 +5,13 @@ image) and the depth image's stamp wanders a few milliseconds from the colour im
 
 from __future__ import annotations
 
-import csv
-import json
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from feepe.calibrate.folder import FolderWriter
+from feepe.calibrate.recording import RecordedFrame
 from kernel.bop import read_frame, read_scene
-from kernel.files import write_png
 
 START_S, PERIOD_S = 1000.0, 0.5
 
@@ -101,24 +99,11 @@ def write_folder(scene_dir: Path, folder: Path, masks: bool = False, flange: boo
     """The scene as a recording folder (feepe/calibrate/folder.py); depth in 0.1 mm units as BOP stores it.
     `masks`: the end-effector's visible masks too; `flange`: the end-effector's poses instead of joints."""
     meta, ids = read_scene(scene_dir)
-    for sub in ("rgb", "depth") + (("masks",) if masks else ()):
-        (folder / sub).mkdir(parents=True, exist_ok=True)
-    rows, poses = [], {}
+    writer = FolderWriter(folder, depth_scale=1e-4)
     for i in ids:
         f = read_frame(scene_dir, i)
-        name = f"{i:06d}"
-        write_png(folder / "rgb" / f"{name}.png", f.rgb[..., ::-1])
-        write_png(folder / "depth" / f"{name}.png", np.round(f.depth * 1e4).astype(np.uint16))
-        if masks:
-            write_png(folder / "masks" / f"{name}.png", f.mask_visib.astype(np.uint8) * 255)
-        rows.append([name, *map(float, f.joint_positions)])
-        poses[name] = f.T_base_ee.tolist()
-        K, shape = f.K, f.rgb.shape[:2]
-    (folder / "camera_info.yaml").write_text(yaml.safe_dump(
-        {"width": shape[1], "height": shape[0], "k": K.reshape(-1).tolist(), "depth_scale": 1e-4}))
-    if flange:
-        (folder / "flange_poses.json").write_text(json.dumps(poses))
-    else:
-        with (folder / "joint_states.csv").open("w", newline="") as fh:
-            csv.writer(fh).writerows([["frame", *meta.joint_names], *rows])
+        joints = None if flange else dict(zip(meta.joint_names, map(float, f.joint_positions)))
+        writer.add(RecordedFrame(f"{i:06d}", float(i), f.rgb, f.depth, f.K, joints, f.T_base_ee,
+                                 f.mask_visib if masks else None))
+    writer.close()
     return ids

@@ -9,7 +9,7 @@ refinement (`refine="silhouette"`, feepe/silhouette.py).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -150,6 +150,15 @@ class FeepeOptions:
     def needs_surface(self) -> bool:
         """The depth terms (icp, silhouette+depth) align to surface samples of the model."""
         return self.icp or self.depth_in_refinement
+
+
+def fitting_own_masks(opts: FeepeOptions, depth: bool, refine_chosen: bool = False) -> FeepeOptions:
+    """With no mask given, or masks as a prior, the estimator segments the robot itself and fits the robot's
+    outline to that segmentation (the refinement on, `silhouette="robot"`): with depth where there is depth,
+    unless a refinement was chosen (six seed-0 segments per depth, no mask: exact 91.34 -> 98.80 ADD, stereo
+    33.33 -> 40.56; history.md)."""
+    refine = opts.refine if refine_chosen else "silhouette+depth" if depth else "silhouette"
+    return replace(opts, silhouette="robot", refine=refine)
 
 
 def load_models(path: Path, opts: FeepeOptions) -> tuple[SurfaceModel | None, SilhouetteModel | None]:

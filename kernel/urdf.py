@@ -1,5 +1,6 @@
-"""Where a URDF's mesh file names point on this machine: the calibration tool (feepe) and the templates of a
-user's end-effector (syneepose) read users' URDFs, whose meshes are named package://pkg/path or file://."""
+"""What the calibration tool (feepe) and the templates of a user's end-effector (syneepose) both need of a
+user's URDF: where its mesh names (package://pkg/path, file://) point on this machine, and the links below a
+link (the end-effector's)."""
 
 from __future__ import annotations
 
@@ -21,3 +22,15 @@ def mesh_path(name: str, urdf: Path, mesh_dir: Path | None = None) -> Path:
         return Path(name)
     beside = urdf.parent / name
     return beside if beside.is_file() else root / name
+
+
+def links_below(link: str, joints) -> set[str]:
+    """`link` and every link under it, over `joints` as (parent, child) link-name pairs."""
+    below, frontier = {link}, [link]
+    while frontier:
+        parent = frontier.pop()
+        for joint_parent, child in joints:
+            if joint_parent == parent and child not in below:
+                below.add(child)
+                frontier.append(child)
+    return below

@@ -10,7 +10,6 @@ poses from forward kinematics of each frame's joint positions, as a user with th
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,7 +22,7 @@ from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.candidates import SingleFrameOptions
 from feepe.estimator import (GIVEN_MASKS, REFINEMENTS, SILHOUETTES, VARIANTS, Estimator, FeepeOptions, RobotView,
-                             describe, load_models)
+                             describe, fitting_own_masks, load_models)
 from feepe.onboarding import onboard
 from feepe.silhouette import SilhouetteModel
 from kernel.bop import SceneMeta
@@ -102,14 +101,12 @@ class Feepe:
                 "estimator": describe(self.opts, self.backbone)}
 
     def given(self, masks: bool, depth: bool) -> None:
-        """With no mask given the estimator finds and segments the robot itself, so it fits the robot's
-        outline (the refinement on, `silhouette robot`: the arm's meshes from the URDF), as with
-        `--given-masks prior`; unless a refinement was chosen, with depth where there is depth (six seed-0
-        segments per depth, no mask: exact 91.34 -> 98.80 ADD, stereo 33.33 -> 40.56; history.md)."""
+        """With no mask given the estimator finds and segments the robot itself, as with `--given-masks
+        prior`, and fits the robot's outline to it (the arm's meshes from the URDF; feepe.estimator's
+        fitting_own_masks)."""
         if masks and self.opts.given_masks == "truth":
             return
-        refine = self.opts.refine if self._refine_chosen else "silhouette+depth" if depth else "silhouette"
-        self.opts = dataclasses.replace(self.opts, silhouette="robot", refine=refine)
+        self.opts = fitting_own_masks(self.opts, depth, self._refine_chosen)
 
     def inputs(self, meta: SceneMeta, scene_dir: Path) -> list[Path]:
         """The template set of the scene's end-effector, the model `--icp` / `--refine` align, and for the

@@ -116,16 +116,20 @@ def _depth(folder: Path, name: str, scale: float) -> np.ndarray:
 
 class FolderWriter:
     """Writes frames as a recording folder, as they are read (the calibration's saved samples: solved
-    again with other options, the bag is not read again). Depth as float TIFF: the metres as read."""
+    again with other options, the bag is not read again). Depth as float TIFF, the metres as read, or with
+    `depth_scale` (metres per unit) as 16-bit PNG."""
 
-    def __init__(self, root: Path):
+    def __init__(self, root: Path, depth_scale: float | None = None):
         self.root, self.rows, self.poses, self.K, self.size = Path(root), [], {}, None, None
+        self.depth_scale = depth_scale
         for sub in ("rgb", "depth", "masks"):
             (self.root / sub).mkdir(parents=True, exist_ok=True)
 
     def add(self, frame: RecordedFrame) -> None:
         write_png(self.root / "rgb" / f"{frame.name}.png", frame.rgb[..., ::-1])
-        if frame.depth is not None:
+        if frame.depth is not None and self.depth_scale:
+            write_png(self.root / "depth" / f"{frame.name}.png", np.round(frame.depth / self.depth_scale).astype(np.uint16))
+        elif frame.depth is not None:
             _, data = cv2.imencode(".tiff", frame.depth.astype(np.float32))
             write_atomic(self.root / "depth" / f"{frame.name}.tiff", data.tobytes())
         if frame.mask is not None:
@@ -140,7 +144,8 @@ class FolderWriter:
         for sub in ("depth", "masks"):
             if not any((self.root / sub).iterdir()):
                 (self.root / sub).rmdir()
-        info = {"k": np.asarray(self.K).reshape(-1).tolist(), "width": int(self.size[1]), "height": int(self.size[0])}
+        info = {"k": np.asarray(self.K).reshape(-1).tolist(), "width": int(self.size[1]), "height": int(self.size[0]),
+                **({"depth_scale": self.depth_scale} if self.depth_scale else {})}
         write_atomic(self.root / "camera_info.yaml", yaml.safe_dump(info).encode())
         if self.rows:
             names = list(self.rows[0][1])

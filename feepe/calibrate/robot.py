@@ -13,7 +13,7 @@ import yourdfpy
 
 from kernel.errors import UserError
 from kernel.transforms import inv_T
-from kernel.urdf import mesh_path
+from kernel.urdf import links_below, mesh_path
 
 
 @dataclass
@@ -42,7 +42,7 @@ class UrdfRobot:
             if name is not None and name not in links:
                 raise UserError(f"{flag} {name!r} is not a link of {urdf.name}; its links: {', '.join(links)}")
         self.ee_link, self.base_link = ee_link, base_link or self.model.base_link
-        ee_side = self._below(ee_link)
+        ee_side = links_below(ee_link, [(j.parent, j.child) for j in self.model.robot.joints])
         if self.base_link in ee_side:
             raise UserError(f"--base-link {self.base_link!r} lies on the end-effector (below {ee_link!r})")
         self.arm_links = [link.name for link in self.model.robot.links
@@ -52,16 +52,6 @@ class UrdfRobot:
 
     def _mesh_path(self, name: str) -> str:
         return str(mesh_path(name, self.urdf, self.mesh_dir))
-
-    def _below(self, link: str) -> set[str]:
-        out, frontier = {link}, [link]
-        while frontier:
-            parent = frontier.pop()
-            for joint in self.model.robot.joints:
-                if joint.parent == parent and joint.child not in out:
-                    out.add(joint.child)
-                    frontier.append(joint.child)
-        return out
 
     @staticmethod
     def _has_meshes(link) -> bool:

@@ -15,7 +15,7 @@ from feepe.backbones import DEFAULT as DEFAULT_BACKBONE
 from feepe.backbones import get_backbone
 from feepe.calibrate.recording import RecordedFrame, Recording
 from feepe.calibrate.robot import UrdfRobot
-from feepe.estimator import Estimator, FeepeOptions, RobotView, load_models
+from feepe.estimator import Estimator, FeepeOptions, RobotView, fitting_own_masks, load_models
 from feepe.onboarding import onboard
 from feepe.registration import depth_tolerance
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, placed
@@ -64,8 +64,8 @@ def estimator_for(settings: SolveSettings, robot: UrdfRobot | None, has_depth: b
         raise UserError("with flange poses instead of joint states the robot's links cannot be placed, so the "
                         "end-effector's masks are needed: give masks/ and --masks given, or record joint states")
     if robot is not None:
-        opts = FeepeOptions(refine="silhouette+depth" if has_depth else "silhouette", silhouette="robot",
-                            given_masks="prior" if settings.masks == "given" else "truth")
+        opts = fitting_own_masks(FeepeOptions(given_masks="prior" if settings.masks == "given" else "truth"),
+                                 has_depth)
     else:
         opts = FeepeOptions(refine="silhouette")
     for flag, path in (("--templates", settings.templates), ("--model", settings.model)):

@@ -15,6 +15,7 @@ import numpy as np
 
 from kernel.errors import UserError
 from kernel.transforms import R_to_rpy
+from kernel.urdf import links_below
 
 JOINT_TYPES = ("fixed", "revolute", "continuous", "prismatic")
 
@@ -152,13 +153,7 @@ def read_urdf_below(path: Path, root_link: str, mesh_path) -> RobotModel:
     names = [ul.name for ul in urdf.robot.links]
     if root_link not in names:
         raise UserError(f"--ee-link {root_link!r} is not a link of {path.name}; its links: {', '.join(names)}")
-    below, frontier = {root_link}, [root_link]
-    while frontier:
-        parent = frontier.pop()
-        for uj in urdf.robot.joints:
-            if uj.parent == parent and uj.child not in below:
-                below.add(uj.child)
-                frontier.append(uj.child)
+    below = links_below(root_link, [(uj.parent, uj.child) for uj in urdf.robot.joints])
     links = []
     for ul in urdf.robot.links:
         if ul.name in below:
