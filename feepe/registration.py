@@ -42,11 +42,17 @@ SEEN_THROUGH_WEIGHT = 2.0  # a pixel that sees through the model costs two that 
 SEEN_THROUGH_M = 0.03  # and sees at least this far behind the model's surface, past the agreement's tolerance: a
 # stereo camera's depth on thin parts spreads a few centimetres behind them (D435 model, mini-stereo scene 0 at
 # the true calibration: 10 % of the robot's pixels 2.4 cm or more behind, 2 % beyond 5 cm); free space is farther
+SEEN_THROUGH_INSET_PX = 2  # seen-through pixels count this far inside the model's outline (on the grid it is
+# drawn on): a hypothesis 2 cm off the true one (seed-11 stereo scene 10, a UR5e 1.5 m away) sees past its thin
+# links' edges on 254 of its 1054 pixels, 108 of them this far in, against 15 of 68 at the truth; a robot standing
+# in free space is seen through in its interior
 CONTRAST_OFFSET_PX = 3  # colours compared this far inside and outside the outline: past a pixel or two of pose
 # error and the image's blur
-CONTRAST_RGB = 15.0  # RGB distance (0-255) that tells the two sides apart. At the true calibration 91-100 % of the
-# outline changes colour by more (seed-0 and seed-7 stereo, six segments each, frames 0-1), at the registration's
-# wrong hypotheses at most 76 %, on a wall or floor 0-20 %
+CONTRAST_RGB = 15.0  # RGB distance (0-255) that tells the two sides apart in a well-exposed image. At the true
+# calibration 91-100 % of the outline changes colour by more (seed-0 and seed-7 stereo, six segments each, frames
+# 0-1), at the registration's wrong hypotheses at most 76 %, on a wall or floor 0-20 %
+WHITE_PERCENTILE = 99  # an image's white level: its brightest pixels' channel maximum at this percentile
+MAX_GAIN = 8.0  # a dark image's colour differences count as if exposed up to this many times brighter
 
 
 def plane_tolerance(z: np.ndarray) -> np.ndarray:
@@ -106,7 +112,8 @@ def register(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 
 class DepthFit:
     """How a calibration's rendered robot depth meets the sensor's, in pixels (on the strided grid)."""
     agree: int  # within the sensor's noise of the model's surface
-    seen_through: int  # the sensor sees well behind the model's surface: the model cannot stand there
+    seen_through: int  # the sensor sees well behind the model's surface, SEEN_THROUGH_INSET_PX inside its outline:
+    # the model cannot stand there
     drawn: int  # model pixels where the sensor has depth
     in_front: int  # the sensor sees nearer than the model's surface: something (or a stereo error) hides it
 
@@ -127,9 +134,20 @@ def depth_fit(rendered: np.ndarray, depth: np.ndarray, noise_m: float = 0.01,
     """rendered: the model's depth (m, 0 off it) on the grid of `depth`."""
     drawn = (rendered > 0) & (depth > 0)
     tolerance = depth_tolerance(rendered, noise_m, noise_z2)
+    inset = np.ones((2 * SEEN_THROUGH_INSET_PX + 1,) * 2, np.uint8)
+    inside = cv2.erode((rendered > 0).astype(np.uint8), inset, borderValue=1).astype(bool)
     return DepthFit(int(np.count_nonzero(drawn & (np.abs(depth - rendered) < tolerance))),
-                    int(np.count_nonzero(drawn & (depth > rendered + tolerance + SEEN_THROUGH_M))),
+                    int(np.count_nonzero(drawn & inside & (depth > rendered + tolerance + SEEN_THROUGH_M))),
                     int(np.count_nonzero(drawn)), int(np.count_nonzero(drawn & (depth <= rendered - tolerance))))
+
+
+def exposure_gain(rgb: np.ndarray) -> float:
+    """The gain that brings the image's white level to 255, as a camera's auto-exposure would (at least 1, at
+    most MAX_GAIN). A dark scene's colours differ by a fraction of a bright one's: in `mini` scene 15 (white level
+    66, a black arm in shadow) the true calibration's outline changed colour by CONTRAST_RGB along 62 % of it,
+    98 % once brought to white; images already reaching white are left as they are."""
+    white = np.percentile(np.asarray(rgb).max(axis=-1), WHITE_PERCENTILE)
+    return float(np.clip(255.0 / max(white, 1.0), 1.0, MAX_GAIN))
 
 
 def outline_contrast(drawn: np.ndarray, rgb: np.ndarray) -> float:
@@ -143,7 +161,7 @@ def outline_contrast(drawn: np.ndarray, rgb: np.ndarray) -> float:
     smooth = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), 2.0)
     inward = np.stack([cv2.Sobel(smooth, cv2.CV_32F, 1, 0)[v, u], cv2.Sobel(smooth, cv2.CV_32F, 0, 1)[v, u]], 1)
     inward /= np.linalg.norm(inward, axis=1, keepdims=True) + 1e-9
-    image = cv2.GaussianBlur(np.asarray(rgb, np.float32), (0, 0), 1.0)
+    image = cv2.GaussianBlur(np.asarray(rgb, np.float32), (0, 0), 1.0) * exposure_gain(rgb)
     pixels, step = np.stack([u, v], 1), CONTRAST_OFFSET_PX * inward
     inner, outer = np.round(pixels + step).astype(int), np.round(pixels - step).astype(int)
     size = mask.shape[::-1]

@@ -223,6 +223,21 @@ def test_a_depth_fit_forgives_a_few_centimetres_behind_but_not_free_space_and_co
     assert (fit.agree, fit.seen_through, fit.drawn, fit.in_front) == (50, 20, 100, 10)
 
 
+def test_a_pose_a_little_off_a_thin_link_is_not_seen_through_at_its_edges():
+    """A link 12 px wide drawn 2 px beside where the sensor sees it: the sensor sees the wall behind along
+    the drawn link's edge, which a pose error explains; the same wall seen through its middle is free space."""
+    from feepe.registration import SEEN_THROUGH_INSET_PX
+
+    wall, rendered = np.full((40, 40), 3.0), np.zeros((40, 40))
+    rendered[:, 14:26] = 1.0
+    seen = wall.copy()
+    seen[:, 16:28] = 1.0  # the link where the sensor sees it
+    near_miss = depth_fit(rendered, seen)
+    assert near_miss.seen_through == 0 and near_miss.agree == 40 * 10
+    free = wall.copy()
+    assert depth_fit(rendered, free).seen_through == 40 * (12 - 2 * SEEN_THROUGH_INSET_PX)
+
+
 def test_the_colour_changes_across_the_true_outline_and_not_across_one_on_the_wall():
     """At the true calibration the arm's outline separates its grey from the blue background; the same
     outline moved onto the background (where a wall's depth could agree) has blue on both sides, and so has an
@@ -234,3 +249,14 @@ def test_the_colour_changes_across_the_true_outline_and_not_across_one_on_the_wa
     blue = np.where(drawn[..., None], (40, 60, 160 + CONTRAST_RGB / 2), rgb).astype(np.uint8)
     assert outline_contrast(drawn, blue) < 0.3
     assert outline_contrast(np.zeros(SHAPE, bool), rgb) == 0.0
+
+
+def test_a_dark_image_tells_the_outline_as_a_bright_one_does():
+    """The same scene 14 times darker (white level about 15, where the arm and the wall differ by less than
+    CONTRAST_RGB): the colour still changes across the true outline and still not across the one moved onto the
+    wall."""
+    parts, T_parts, _, rgb, _, _ = _scene()
+    drawn = parts.render_depth(T_parts, K, SHAPE) > 0
+    dark = np.round(rgb / 14.0).astype(np.uint8)
+    assert outline_contrast(drawn, dark) > 0.9
+    assert outline_contrast(np.roll(drawn, 140, axis=1), dark) < 0.1
