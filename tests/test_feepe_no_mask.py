@@ -260,3 +260,23 @@ def test_a_dark_image_tells_the_outline_as_a_bright_one_does():
     dark = np.round(rgb / 14.0).astype(np.uint8)
     assert outline_contrast(drawn, dark) > 0.9
     assert outline_contrast(np.roll(drawn, 140, axis=1), dark) < 0.1
+
+
+def test_with_no_mask_frames_before_the_first_calibration_are_refined_alone(tiny_dataset):
+    """Frames whose hypotheses are not accepted (here: a grey image, so no colour bears any outline out) enter
+    the memory but are not refined over: each is refined alone, and the first accepted frame as well."""
+    from feepe.estimator import RobotView
+    from kernel.bop import read_frame
+
+    scene = sorted((tiny_dataset / "test").iterdir())[0]
+    est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
+    for n, i in enumerate(ids[:3]):
+        f = read_frame(scene, i)
+        view = RobotView(None, np.stack([robot.T_base_link(f.joint_positions)[n] for n in links]))
+        r = est.step(np.full_like(f.rgb, 128), f.depth, None, f.K, f.T_base_ee, view)
+        assert r.T_cam_base is None and r.n_key_frames == 0 and est._hypotheses, n
+    assert len(est.pool.entries) == 3
+    f = read_frame(scene, ids[3])
+    r = est.step(f.rgb, f.depth, None, f.K, f.T_base_ee,
+                 RobotView(None, np.stack([robot.T_base_link(f.joint_positions)[n] for n in links])))
+    assert r.T_cam_base is not None and r.n_key_frames == 0
