@@ -270,13 +270,16 @@ def test_with_no_mask_frames_before_the_first_calibration_are_refined_alone(tiny
 
     scene = sorted((tiny_dataset / "test").iterdir())[0]
     est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
-    for n, i in enumerate(ids[:3]):
+
+    def step(f, rgb):
+        T_base_link = robot.T_base_link(f.joint_positions)
+        return est.step(rgb, f.depth, None, f.K, f.T_base_ee, RobotView(None, np.stack([T_base_link[n] for n in links])))
+
+    for i in ids[:3]:
         f = read_frame(scene, i)
-        view = RobotView(None, np.stack([robot.T_base_link(f.joint_positions)[n] for n in links]))
-        r = est.step(np.full_like(f.rgb, 128), f.depth, None, f.K, f.T_base_ee, view)
-        assert r.T_cam_base is None and r.n_key_frames == 0 and est._hypotheses, n
+        r = step(f, np.full_like(f.rgb, 128))
+        assert r.T_cam_base is None and r.n_key_frames == 0 and est._hypotheses, i
     assert len(est.pool.entries) == 3
     f = read_frame(scene, ids[3])
-    r = est.step(f.rgb, f.depth, None, f.K, f.T_base_ee,
-                 RobotView(None, np.stack([robot.T_base_link(f.joint_positions)[n] for n in links])))
+    r = step(f, f.rgb)
     assert r.T_cam_base is not None and r.n_key_frames == 0
