@@ -477,9 +477,9 @@ class Estimator:
 
     def _with_key_frames(self, T_base_ee: np.ndarray, found: FrameCandidates, k: int) -> list:
         """The current frame, then k key frames of the memory: (T_base_ee, FrameCandidates) each. With no mask
-        and no calibration accepted yet, the current frame alone: the memory's frames were segmented at
-        hypotheses that did not explain them, and refining over them cost a failing segment more with every
-        frame (seed-11 stereo scene 15: 3.7 s at frame 0, 13 s at frame 5)."""
+        and no calibration accepted yet, the current frame alone: acceptance judges the current frame only, and
+        refining a hypothesis over the memory cost a failing segment more with every frame (seed-11 stereo scene
+        15: 3.7 s at frame 0, 13 s at frame 5)."""
         if found.segmentation is not None and self.T_cam_base is None:
             k = 0
         return [(T_base_ee, found)] + [(e.T_base_ee, e.found) for e in self.pool.key_frames(T_base_ee[:3, :3], k)]
