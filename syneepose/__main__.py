@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,14 +46,31 @@ def _check_run(args) -> None:
     """The flags that are not preset values."""
     if getattr(args, "seed", 0) < 0:
         raise UserError(f"--seed {args.seed}: must be >= 0 (numpy seeds are non-negative)")
-    if not 1 <= args.workers <= MAX_WORKERS:
+    if args.workers is not None and not 1 <= args.workers <= MAX_WORKERS:
         raise UserError(f"--workers {args.workers}: must lie in 1..{MAX_WORKERS}")
     if args.threads is not None and not 1 <= args.threads <= MAX_THREADS:
         raise UserError(f"--threads {args.threads}: must lie in 1..{MAX_THREADS}")
+    if args.gpus is not None and args.device != "gpu":
+        raise UserError(f"--gpus {args.gpus} goes with --device gpu; add it, or drop --gpus")
     if args.executor == "ray":
         from syneepose.executors import check_ray_address
 
+        if args.gpus is not None:
+            raise UserError(f"--gpus {args.gpus}: with --executor ray each task asks Ray for one GPU and Ray "
+                            "picks it; drop --gpus (start the Ray nodes with the GPUs to use)")
         check_ray_address(args.ray_address)
+    else:
+        _workers(args)  # no GPU, or a --gpus this machine has not: one line before anything is written
+
+
+def _workers(args) -> list[dict[str, str]]:
+    """The environment variables of each local worker: none on a CPU (1 worker by default); with --device gpu
+    by default one worker per GPU, each pinned to its own (syneepose/devices.py)."""
+    from syneepose.devices import nvidia_smi, visible_gpus, worker_environments
+
+    if args.device == "cpu":
+        return [{} for _ in range(args.workers or 1)]
+    return worker_environments(args.gpus, args.workers, visible_gpus(os.environ, nvidia_smi()))
 
 
 def _threads(args) -> int:
@@ -169,7 +187,9 @@ def _dataset(args) -> None:
     from syneepose.robots.catalog import load_catalog
 
     common = ["--preset", args.preset, "--out", args.out, "--device", args.device, "--executor", args.executor,
-              "--workers", str(args.workers), *(["--ray-address", args.ray_address] if args.ray_address else []),
+              *(["--workers", str(args.workers)] if args.workers is not None else []),
+              *(["--gpus", args.gpus] if args.gpus is not None else []),
+              *(["--ray-address", args.ray_address] if args.ray_address else []),
               *(["--threads", str(args.threads)] if args.threads is not None else [])]
     configs = load_catalog().parse_configs(args.robots)
     end_effectors = ",".join(dict.fromkeys(c.split("+", 1)[1] for c in configs))
@@ -211,9 +231,9 @@ def _execute(args, fn, jobs, report, bar) -> None:
 
     try:
         if args.executor == "ray":
-            run_ray(fn, jobs, args.ray_address, report, cpus=max(_threads(args), 1))
+            run_ray(fn, jobs, args.ray_address, report, cpus=max(_threads(args), 1), gpus=int(args.device == "gpu"))
         else:
-            run_local(fn, jobs, args.workers, report)
+            run_local(fn, jobs, _workers(args), report)
     except BaseException:
         bar.leave = False
         raise
@@ -298,11 +318,17 @@ def _show(args) -> None:
 
 def _add_execution(p: argparse.ArgumentParser) -> None:
     """Where and how a rendering command runs its jobs: the same options for render, templates and dataset."""
-    p.add_argument("--device", choices=["cpu", "gpu"], default="cpu", help="Cycles device (gpu: first found)")
+    p.add_argument("--device", choices=["cpu", "gpu"], default="cpu",
+                   help="Cycles device; gpu: OptiX, else CUDA, else HIP (one error line when there is no GPU), "
+                   "locally one worker per GPU pinned with CUDA_VISIBLE_DEVICES (HIP_VISIBLE_DEVICES on AMD), "
+                   "under Ray one GPU per task")
+    p.add_argument("--gpus", help="with --device gpu, locally: all (default) or indices such as 0,1,3 among the "
+                   "GPUs nvidia-smi lists or CUDA_VISIBLE_DEVICES/HIP_VISIBLE_DEVICES leave visible; a worker each")
     p.add_argument("--executor", choices=["local", "ray"], default="local")
     p.add_argument("--ray-address",
                    help="HOST:PORT of a running Ray cluster, or auto on its head (default: start a local one)")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--workers", type=int,
+                   help="local worker processes (default 1; with --device gpu one per GPU, N spread over them)")
     p.add_argument("--threads", type=int, help="Cycles threads per job (default: every core locally; 1 per Ray task, "
                    "which asks Ray for as many CPUs)")
 

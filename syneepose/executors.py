@@ -22,22 +22,25 @@ from kernel.errors import UserError
 GRACE_S = 2.0  # a worker asked to stop gets this long before it is killed
 
 
-def run_local(fn, jobs: list, workers: int, progress) -> None:
-    """At most `workers` jobs at once, each `fn(job)` in its own process; `progress(job)` as each ends.
-    The first failure stops the others and is raised here."""
+def run_local(fn, jobs: list, workers: list[dict[str, str]], progress) -> None:
+    """One job at a time per worker, each `fn(job)` in its own process started with that worker's
+    environment variables (`workers`: one dict each, e.g. the GPU it is pinned to, devices.py);
+    `progress(job)` as each ends. The first failure stops the others and is raised here."""
     ctx = get_context("spawn")
-    pending, running = list(jobs), {}  # receiving end of a job's pipe -> (process, job)
+    pending, free = list(jobs), list(workers)
+    running = {}  # receiving end of a job's pipe -> (process, job, its worker's environment)
     try:
         while pending or running:
-            while pending and len(running) < workers:
-                job = pending.pop(0)
+            while pending and free:
+                job, environment = pending.pop(0), free.pop(0)
                 receive, send = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_work, args=(fn, job, send, os.getpid()))
+                proc = ctx.Process(target=_work, args=(fn, job, send, os.getpid(), environment))
                 proc.start()
                 send.close()
-                running[receive] = (proc, job)
+                running[receive] = (proc, job, environment)
             for receive in wait(list(running)):
-                proc, job = running.pop(receive)
+                proc, job, environment = running.pop(receive)
+                free.append(environment)
                 try:
                     failed, value = receive.recv()
                 except EOFError:  # the process died without a word: killed, or out of memory
@@ -48,7 +51,7 @@ def run_local(fn, jobs: list, workers: int, progress) -> None:
                     raise value
                 progress(job)
     finally:
-        for proc, _ in running.values():
+        for proc, *_ in running.values():
             _stop(proc)
 
 
@@ -60,9 +63,11 @@ def _stop(proc) -> None:
         proc.join()
 
 
-def _work(fn, job, send, parent: int) -> None:
-    """Worker entry: dies with its parent, leaves Ctrl-C to it (the terminal sends it to the whole group),
+def _work(fn, job, send, parent: int, environment: dict[str, str]) -> None:
+    """Worker entry: takes its worker's variables before `fn` imports bpy, so that the GPU runtimes Cycles
+    starts see them; dies with its parent, leaves Ctrl-C to it (the terminal sends it to the whole group),
     and sends back (failed, result or exception)."""
+    os.environ.update(environment)
     _die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
@@ -84,10 +89,11 @@ def _die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
-def run_ray(fn, jobs: list, address: str | None, progress, cpus: int = 1) -> None:
-    """Jobs as Ray tasks, each asking for `cpus` CPUs, on an existing cluster (`address`) or a local instance.
-    A task whose worker dies is run again (up to twice) and resumes from the whole frames on disk; an
-    interrupted run cancels every task it started."""
+def run_ray(fn, jobs: list, address: str | None, progress, cpus: int = 1, gpus: int = 0) -> None:
+    """Jobs as Ray tasks, each asking for `cpus` CPUs and `gpus` GPUs, on an existing cluster (`address`) or a
+    local instance; Ray pins a task to its GPU with CUDA_VISIBLE_DEVICES (HIP_VISIBLE_DEVICES on AMD). A task
+    whose worker dies is run again (up to twice) and resumes from the whole frames on disk; an interrupted
+    run cancels every task it started."""
     import ray
 
     try:
@@ -96,7 +102,11 @@ def run_ray(fn, jobs: list, address: str | None, progress, cpus: int = 1) -> Non
         raise UserError(f"--ray-address {address}: no Ray cluster answers there ({str(exc).splitlines()[0]}); start "
                         "one with `ray start --head`, and set RAY_AUTH_MODE=token on this machine when the cluster "
                         "uses token authentication (the default of `ray start` since Ray 2.59)") from None
-    remote = ray.remote(max_retries=2, max_calls=1, num_cpus=cpus)(fn)  # a fresh worker per job, as locally
+    if gpus and not ray.cluster_resources().get("GPU"):  # else Ray waits for one forever
+        raise UserError("--device gpu: the Ray cluster has no GPU (`ray status` lists none); start its nodes on "
+                        "GPU machines (ray start finds their GPUs, or give --num-gpus N), or render with --device cpu")
+    # a fresh worker per job, as locally
+    remote = ray.remote(max_retries=2, max_calls=1, num_cpus=cpus, num_gpus=gpus)(fn)
     pending = {remote.remote(job): job for job in jobs}
     try:
         while pending:
