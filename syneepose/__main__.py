@@ -12,6 +12,7 @@ from typing import Callable
 from kernel.cli import run_command
 from kernel.errors import UserError
 from syneepose.preset import load_preset, templates_with
+from syneepose.scene.spec import IR_RENDERS
 from syneepose.templates import INPLANE_BY
 
 MAX_WORKERS = 64
@@ -134,7 +135,7 @@ def _plan_render(args) -> Phase:
     if args.depth != "exact":
         from syneepose.stereo import load_profile
 
-        load_profile(args.sensor)  # a bad profile is one error line here, not one per worker
+        load_profile(args.sensor, args.sensor_render)  # a bad profile is one error line here, not one per worker
     out = Path(args.out)
     _writable(out)  # after every check of the flags: a mistake writes nothing
     assets = paths.assets_dir()
@@ -142,7 +143,7 @@ def _plan_render(args) -> Phase:
     content = SceneContent(preset, args.preset, args.seed, args.marker, backgrounds)
     width, height = preset.resolution
     render = RenderSettings(width, height, preset.samples, preset.render.denoise, preset.render.max_bounces,
-                            args.device, args.depth, args.sensor, _threads(args))
+                            args.device, args.depth, args.sensor, _threads(args), args.sensor_render)
     plan = make_jobs(content, render, SegmentSelection(tuple(configs), preset.segments, shard), out, assets)
     jobs = plan.jobs
     stale = resume.check_resume(out, jobs, plan.settings, args.overwrite, legacy_preset_digests(content))
@@ -358,6 +359,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="stereo: depth/ from a simulated active-stereo sensor, exact depth in depth_gt/; "
                         "both: also keep its IR pair (ir_left/, ir_right/)")
     r.add_argument("--sensor", default="d435", help="sensor profile for --depth stereo|both (scenes/sensors/ or YAML)")
+    r.add_argument("--sensor-render", choices=IR_RENDERS,
+                   help="the IR pair: shaded from G-buffers (the profile's default, no sampling noise) or pathtraced "
+                        "by Cycles (8-12x the cost of an exact-depth frame here; kept for comparison)")
     r.add_argument("--overwrite", action="store_true",
                    help="render this run's scenes again from scratch (a rerun with other settings is refused without it)")
     _add_execution(r)

@@ -127,7 +127,7 @@ def job_settings(content: SceneContent, render: RenderSettings, segments: int) -
             "seed": content.seed, "segments": segments, "frames": content.preset.frames,
             "resolution": [render.width, render.height], "samples": render.samples, "device": render.device,
             "marker": content.marker, "depth": render.depth,
-            "sensor_sha256": None if render.depth == "exact" else _digest(load_profile(render.sensor).source),
+            "sensor_sha256": None if render.depth == "exact" else _digest(load_profile(render.sensor, render.sensor_render).source),
             "backgrounds": [Path(b).name for b in content.backgrounds]}
 
 
@@ -278,7 +278,7 @@ def write_dataset_info(out: Path, plan: Plan, assets: Path) -> None:
     if depth != "exact":
         from syneepose.stereo import load_profile
 
-        info["sensor"] = load_profile(render.sensor).source
+        info["sensor"] = load_profile(render.sensor, render.sensor_render).source
     write_json(out / bop.DATASET_INFO, info)
     # models_eval/ (BOP's resampled evaluation models) is optional until the assets build makes it.
     for name, source in ((MODELS, paths.models_dir(assets)), (MODELS_EVAL, paths.models_eval_dir(assets))):

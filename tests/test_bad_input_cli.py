@@ -297,7 +297,8 @@ def test_tables_and_overlays_mistakes(capsys, tmp_path):
 D435 = yaml.safe_load(Path("scenes/sensors/d435.yaml").read_text())
 SENSORS = [("matcher.block", 4, "odd block size"), ("projector.power", "lots", "projector.power"),
            ("baseline", 0, "baseline = 0"), ("depth_range", [6, 0.2], "inverted"),
-           ("matcher.blk", 5, "unknown key 'matcher.blk'"), ("ir_samples", 0, "ir_samples = 0")]
+           ("matcher.blk", 5, "unknown key 'matcher.blk'"), ("ir_samples", 0, "ir_samples = 0"),
+           ("imager.full_well", 0, "imager.full_well"), ("ir_render", "raytraced", "ir_render")]
 
 
 @pytest.mark.parametrize("key,value,word", SENSORS, ids=[k for k, _, _ in SENSORS])

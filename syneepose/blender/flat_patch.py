@@ -21,7 +21,8 @@ from kernel.cli import run_command
 from kernel.errors import UserError
 from kernel.files import write_atomic
 from kernel.transforms import make_T
-from syneepose.scene.spec import Plane, Surface
+from syneepose.ir_shading import Lighting
+from syneepose.scene.spec import IR_RENDERS, Plane, Surface
 from syneepose.stereo import load_profile, stereo_depth, to_rgb_camera
 
 INTEL_SUBPIXEL = 0.08  # px, Intel's typical subpixel RMS for the D4xx on a textured flat target
@@ -46,21 +47,23 @@ def plane_rms(depth: np.ndarray, K: np.ndarray, roi: float) -> tuple[float, floa
     return float(np.sqrt(np.mean(d**2))), float(robust), float(np.median(zs)), float(len(zs) / z.size)
 
 
-def measure(distances: list[float], width: int, height: int, profile_name: str, roi: float) -> list[dict]:
+def measure(distances: list[float], width: int, height: int, profile_name: str, roi: float,
+            ir_render: str | None = None) -> list[dict]:
     from syneepose.blender import scene as bscene
     from syneepose.blender.stereo import IrRig
 
-    profile = load_profile(profile_name)
+    profile = load_profile(profile_name, ir_render)
+    world = (0.3, 0.3, 0.3)
     f = width / 2 / np.tan(np.deg2rad(30))
     K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
     grey = Surface("plain", (0.5, 0.5, 0.5), (0.5, 0.5, 0.5), 1.0)
     rows = []
     with tempfile.TemporaryDirectory() as work:
         for z in distances:
-            bscene.reset(width, height, 4, False, 4, (0.3, 0.3, 0.3), 1.0)
+            bscene.reset(width, height, 4, False, 4, world, 1.0)
             bscene.set_camera(K, width, height, np.eye(4))
             bscene.add_planes([Plane(make_T(np.diag([1.0, -1.0, -1.0]), [0, 0, z]), (20.0, 20.0), grey)])
-            rig = IrRig(profile, width, height, seed=0)
+            rig = IrRig(profile, width, height, seed=0, lighting=Lighting.of([], world, 1.0, profile.ambient))
             left, right = rig.render_pair(np.eye(4), Path(work))
             sensed = to_rgb_camera(stereo_depth(left, right, profile, rig.K_ir), rig.K_ir, profile.T_rgb_irleft,
                                    K, width, height)
@@ -83,6 +86,7 @@ def main(argv=None) -> int:
     parser.add_argument("--distances", default="0.5,0.75,1.0,1.5,2.0", help="wall distances, metres")
     parser.add_argument("--resolution", default="320x240", help="RGB size WxH (the IR pair is the profile's scale)")
     parser.add_argument("--profile", default="d435")
+    parser.add_argument("--sensor-render", choices=IR_RENDERS, help="the profile's IR rendering unless given")
     parser.add_argument("--roi", type=float, default=0.8, help="central fraction of the image fitted")
     parser.add_argument("--out", required=True, type=Path, help="JSON file of the rows")
     args = parser.parse_args(argv)
@@ -96,7 +100,7 @@ def main(argv=None) -> int:
                             "0.5,1.0 and 320x240") from None
         if min(distances) <= 0 or not 0 < args.roi <= 1 or min(width, height) < 16 or max(width, height) > 4096:
             raise UserError("--distances must be > 0, --roi in (0, 1], --resolution 16..4096 px a side")
-        rows = measure(distances, width, height, args.profile, args.roi)
+        rows = measure(distances, width, height, args.profile, args.roi, args.sensor_render)
         write_atomic(args.out, json.dumps(rows, indent=1).encode())
         return f"flat_patch: {len(rows)} distances; {args.out}"
 

@@ -12,6 +12,7 @@ from kernel.transforms import inv_T
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import linear_to_srgb8
 from syneepose.blender.stereo import IrRig
+from syneepose.ir_shading import Lighting
 from syneepose.robots.catalog import load_catalog
 from syneepose.robots.robot import Robot
 from syneepose.scene.spec import RenderSettings, SegmentSpec
@@ -20,7 +21,7 @@ from syneepose.stereo import load_profile, stereo_depth, to_rgb_camera
 
 def _with_sensor_depth(frame: Frame, rig: IrRig, spec: SegmentSpec, render: RenderSettings, workdir: Path) -> Frame:
     """The frame with the stereo sensor's depth in `depth` and the exact depth kept as `depth_gt`."""
-    left, right = rig.render_pair(spec.T_base_cam, workdir)
+    left, right = rig.render_pair(spec.T_base_cam, workdir, frame.im_id)
     depth_ir = stereo_depth(left, right, rig.profile, rig.K_ir)
     sensed = to_rgb_camera(depth_ir, rig.K_ir, rig.profile.T_rgb_irleft, spec.K, render.width, render.height)
     sensed = np.where(sensed < MAX_DEPTH, sensed, 0.0)  # beyond the PNG's range: 0, as a sensor reports it
@@ -45,7 +46,7 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scen
                    settings: dict | None = None) -> int:
     """Render the frames not yet on disk; returns how many were rendered. `settings`: what produced them
     (jobs.job_settings), recorded in scene_robot.json; frames of other settings are refused."""
-    sensor = load_profile(render.sensor) if render.depth != "exact" else None
+    sensor = load_profile(render.sensor, render.sensor_render) if render.depth != "exact" else None
     writer = SceneWriter(Path(scene_dir), SceneMeta(
         obj_id=robot.ee.obj_id, arm=robot.arm.name, end_effector=robot.ee.name,
         joint_names=list(robot.arm.joints), T_cam_base=inv_T(spec.T_base_cam),
@@ -59,7 +60,10 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scen
         return 0
     objects = build_scene(spec, render, robot)
     board = bscene.add_board(spec.marker) if spec.marker is not None else None
-    rig = IrRig(sensor, render.width, render.height, seed=spec.stream) if sensor is not None else None
+    rig = None
+    if sensor is not None:
+        lighting = Lighting.of(spec.lights, spec.world_color, spec.world_strength, sensor.ambient)
+        rig = IrRig(sensor, render.width, render.height, seed=spec.stream, lighting=lighting)
     T_cam_base = inv_T(spec.T_base_cam)
     for i in todo:
         q = spec.q[i]

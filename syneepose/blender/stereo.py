@@ -1,9 +1,13 @@
-"""The IR half of the active-stereo sensor in Blender: two IR imagers on the RGB camera's x axis and a
-spot light that projects the random-dot pattern (a texture looked up by the light's ray direction).
+"""The IR half of the active-stereo sensor in Blender: two IR imagers on the RGB camera's x axis and the
+random-dot projector between them.
 
-The IR images reuse the scene with its lights and world dimmed to the profile's `ambient` share and the
-projector switched on; materials keep their visible reflectance (an approximation: real IR albedo
-differs). The projector is hidden in the RGB render, as the RGB imager's IR-cut filter would have it.
+`shaded` (the profile's default) renders G-buffers only - depth, normal and diffuse albedo of one
+pixel-centre ray per pixel from each imager, and depth from the projector for its shadow test - and
+shades them in closed form (syneepose/ir_shading.py). `pathtraced` path-traces the IR pair: the scene with
+its lights and world dimmed to the profile's `ambient` share and a spot light projecting the pattern (a
+texture looked up by the light's ray direction), hidden in the RGB render as the RGB imager's IR-cut filter
+would have it. Materials keep their visible reflectance either way (an approximation: real IR albedo
+differs).
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import numpy as np
 from kernel.transforms import make_T
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import read_passes
+from syneepose.ir_shading import DotPattern, GBuffer, Lighting, Projector, expose, radiance
 from syneepose.stereo import SensorProfile, dot_pattern, ir_to_gray
 
 
@@ -66,30 +71,93 @@ def _projector(profile: SensorProfile, pattern: np.ndarray):
 
 
 class IrRig:
-    """Renders the left/right IR pair for the current frame; the RGB set-up is restored afterwards."""
+    """Renders the left/right IR pair for the current frame; the RGB set-up is restored afterwards.
+    `lighting`: the scene's own light at the profile's ambient share (shaded IR only)."""
 
-    def __init__(self, profile: SensorProfile, width: int, height: int, seed: int = 0):
+    def __init__(self, profile: SensorProfile, width: int, height: int, seed: int = 0,
+                 lighting: Lighting | None = None):
         self.profile = profile
+        self.seed = seed
         self.rgb_size = (width, height)
         self.ir_size = profile.ir_size(width, height)
         self.K_ir = profile.ir_K(width, height)
-        self.projector = _projector(profile, dot_pattern(profile, self.ir_size[0], seed))
+        pattern = dot_pattern(profile, self.ir_size[0], seed)
+        self.lighting = lighting if lighting is not None else Lighting.of([], (0, 0, 0), 0.0, 0.0)
+        self.projector = _projector(profile, pattern) if profile.ir_render == "pathtraced" else None
+        self.dots = DotPattern(pattern, profile.projector["hfov_deg"])
         data = bpy.data.cameras.new("ir_camera")
         data.sensor_fit = "HORIZONTAL"
         data.sensor_width = 36.0
-        data.lens = self.K_ir[0, 0] * 36.0 / self.ir_size[0]
         data.clip_start, data.clip_end = 0.01, 100.0
         self.camera = bpy.data.objects.new("ir_camera", data)
         bpy.context.scene.collection.objects.link(self.camera)
         self.T_irleft_projector = make_T(t=[profile.projector["offset"], 0.0, 0.0])
+        w = self.ir_size[0]
+        f_projector = w / 2 / np.tan(np.deg2rad(profile.projector["hfov_deg"]) / 2)
+        self.K_projector = np.array([[f_projector, 0.0, (w - 1) / 2], [0.0, f_projector, (self.ir_size[1] - 1) / 2],
+                                     [0.0, 0.0, 1.0]])
 
-    def render_pair(self, T_base_rgb: np.ndarray, workdir: Path) -> tuple[np.ndarray, np.ndarray]:
-        scene = bpy.context.scene
+    def render_pair(self, T_base_rgb: np.ndarray, workdir: Path, frame: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """The 8-bit IR pair; `frame` seeds the shaded images' sensor noise (with the rig's seed)."""
         T_base_left = T_base_rgb @ self.profile.T_rgb_irleft
+        T_base_right = T_base_left @ self.profile.T_irleft_irright
+        if self.profile.ir_render == "pathtraced":
+            return self._pathtraced(T_base_left, T_base_right, workdir)
+        saved = self._gbuffer_mode()
+        try:
+            left, right, seen = (self._gbuffer(T, K, workdir) for T, K in (
+                (T_base_left, self.K_ir), (T_base_right, self.K_ir),
+                (T_base_left @ self.T_irleft_projector, self.K_projector)))
+        finally:
+            self._restore(saved)
+        projector = Projector(T_base_left @ self.T_irleft_projector, self.dots,
+                              self.profile.projector["power"] / (4 * np.pi), seen.depth, self.K_projector)
+        imager = self.profile.imager
+        return expose(radiance(left, projector, self.lighting), radiance(right, projector, self.lighting),
+                      imager["psf_sigma"], imager["white_level"], imager["full_well"], imager["read_noise"],
+                      np.random.default_rng([self.seed, frame]))
+
+    def _gbuffer(self, T_base_cam: np.ndarray, K: np.ndarray, workdir: Path) -> GBuffer:
+        scene = bpy.context.scene
+        self.camera.data.lens = K[0, 0] * 36.0 / self.ir_size[0]
+        self.camera.matrix_world = (T_base_cam @ bscene.BLENDER_FROM_OPENCV).T.tolist()
+        path = Path(workdir) / ".gbuffer.exr"
+        scene.render.filepath = str(path)
+        bpy.ops.render.render(write_still=True)
+        try:
+            passes = read_passes(path)
+        finally:
+            path.unlink()
+        depth = passes[f"{bscene.MAIN}.Depth"]
+        albedo = passes[f"{bscene.MAIN}.Diffuse Color"][..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+        return GBuffer(np.where(depth < 1e9, depth, 0.0), passes[f"{bscene.MAIN}.Normal"], albedo, K, T_base_cam)
+
+    def _gbuffer_mode(self) -> dict:
+        """One pixel-centre ray per pixel, no light: what the G-buffer passes need and nothing else."""
+        scene = bpy.context.scene
+        main = scene.view_layers[bscene.MAIN]
+        background = scene.world.node_tree.nodes["Background"].inputs["Strength"]
+        lights = [ob for ob in scene.objects if ob.type == "LIGHT"]
+        saved = self._common_mode()
+        saved.update({"bounces": scene.cycles.max_bounces, "filter": scene.cycles.filter_width,
+                      "world": background.default_value, "hidden": [(ob, ob.hide_render) for ob in lights],
+                      "passes": (main.use_pass_normal, main.use_pass_diffuse_color)})
+        scene.cycles.samples = 1
+        scene.cycles.max_bounces = 0
+        scene.cycles.filter_width = 0.01
+        background.default_value = 0.0
+        for ob in lights:
+            ob.hide_render = True
+        main.use_pass_normal = main.use_pass_diffuse_color = True
+        return saved
+
+    def _pathtraced(self, T_base_left: np.ndarray, T_base_right: np.ndarray, workdir: Path):
+        scene = bpy.context.scene
+        self.camera.data.lens = self.K_ir[0, 0] * 36.0 / self.ir_size[0]
         saved = self._ir_mode(T_base_left)
         try:
             images = []
-            for T in (T_base_left, T_base_left @ self.profile.T_irleft_irright):
+            for T in (T_base_left, T_base_right):
                 self.camera.matrix_world = (T @ bscene.BLENDER_FROM_OPENCV).T.tolist()
                 fd_path = Path(workdir) / f".ir{len(images)}.exr"
                 scene.render.filepath = str(fd_path)
@@ -97,23 +165,29 @@ class IrRig:
                 images.append(ir_to_gray(read_passes(fd_path)[f"{bscene.MAIN}.Combined"]))
                 fd_path.unlink()
         finally:
-            self._rgb_mode(saved)
+            self._restore(saved)
         return images[0], images[1]
+
+    def _common_mode(self) -> dict:
+        """The IR camera at the IR size, one view layer, no denoiser; returns what it changed."""
+        scene = bpy.context.scene
+        saved = {"camera": scene.camera, "size": (scene.render.resolution_x, scene.render.resolution_y),
+                 "aspect": (scene.render.pixel_aspect_x, scene.render.pixel_aspect_y),
+                 "samples": scene.cycles.samples, "denoise": scene.cycles.use_denoising}
+        scene.camera = self.camera
+        scene.render.resolution_x, scene.render.resolution_y = self.ir_size
+        scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
+        scene.cycles.use_denoising = False
+        scene.view_layers[bscene.EE_ONLY].use = False
+        return saved
 
     def _ir_mode(self, T_base_left: np.ndarray) -> dict:
         scene = bpy.context.scene
         background = scene.world.node_tree.nodes["Background"].inputs["Strength"]
         lights = [ob for ob in scene.objects if ob.type == "LIGHT" and ob is not self.projector]
-        saved = {"camera": scene.camera, "size": (scene.render.resolution_x, scene.render.resolution_y),
-                 "aspect": (scene.render.pixel_aspect_x, scene.render.pixel_aspect_y),
-                 "samples": scene.cycles.samples, "denoise": scene.cycles.use_denoising,
-                 "world": background.default_value, "lights": [(ob, ob.data.energy) for ob in lights]}
-        scene.camera = self.camera
-        scene.render.resolution_x, scene.render.resolution_y = self.ir_size
-        scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
+        saved = self._common_mode()
+        saved.update({"world": background.default_value, "lights": [(ob, ob.data.energy) for ob in lights]})
         scene.cycles.samples = self.profile.ir_samples
-        scene.cycles.use_denoising = False
-        scene.view_layers[bscene.EE_ONLY].use = False
         background.default_value = saved["world"] * self.profile.ambient
         for ob, energy in saved["lights"]:
             ob.data.energy = energy * self.profile.ambient
@@ -121,8 +195,9 @@ class IrRig:
         self.projector.hide_render = False
         return saved
 
-    def _rgb_mode(self, saved: dict) -> None:
+    def _restore(self, saved: dict) -> None:
         scene = bpy.context.scene
+        main = scene.view_layers[bscene.MAIN]
         scene.camera = saved["camera"]
         scene.render.resolution_x, scene.render.resolution_y = saved["size"]
         scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = saved["aspect"]
@@ -130,6 +205,13 @@ class IrRig:
         scene.cycles.use_denoising = saved["denoise"]
         scene.view_layers[bscene.EE_ONLY].use = True
         scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = saved["world"]
-        for ob, energy in saved["lights"]:
+        for ob, energy in saved.get("lights", ()):
             ob.data.energy = energy
-        self.projector.hide_render = True
+        for ob, hidden in saved.get("hidden", ()):
+            ob.hide_render = hidden
+        if "bounces" in saved:
+            scene.cycles.max_bounces = saved["bounces"]
+            scene.cycles.filter_width = saved["filter"]
+            main.use_pass_normal, main.use_pass_diffuse_color = saved["passes"]
+        if self.projector is not None:
+            self.projector.hide_render = True

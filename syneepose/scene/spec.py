@@ -69,6 +69,9 @@ class SegmentSpec:
         return len(self.q)
 
 
+IR_RENDERS = ("shaded", "pathtraced")  # the stereo IR pair: shaded from G-buffers (syneepose/ir_shading.py), or by Cycles
+
+
 @dataclass(frozen=True)
 class RenderSettings:
     """How a run renders its segments, beside what each shows (SegmentSpec): the run's choice, the same for
@@ -83,3 +86,4 @@ class RenderSettings:
     depth: str = "exact"  # "stereo" | "both": simulated active-stereo depth (syneepose/stereo.py)
     sensor: str = "d435"  # the stereo sensor's profile: a name in scenes/sensors/ or a YAML path
     threads: int = 0  # Cycles CPU threads; 0: every core of the machine the job runs on
+    sensor_render: str | None = None  # one of IR_RENDERS; None: the sensor profile's choice
