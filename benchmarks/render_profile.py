@@ -17,7 +17,8 @@ from kernel.bop import MAX_DEPTH, Frame, SceneMeta, SceneWriter
 from kernel.transforms import inv_T
 from syneepose import paths
 from syneepose.blender import scene as bscene
-from syneepose.blender.exr import linear_to_srgb8, read_passes
+from syneepose.blender.exr import read_passes
+from syneepose.colour import linear_to_srgb8
 from syneepose.blender.segment import build_scene
 from syneepose.preset import load_preset
 from syneepose.robots.ee_models import load_ee_mesh

@@ -16,7 +16,7 @@ import numpy as np
 
 from syneepose import paths
 from syneepose.blender import scene as bscene
-from syneepose.blender.exr import linear_to_srgb8
+from syneepose.colour import linear_to_srgb8
 from syneepose.blender.segment import build_scene
 from syneepose.preset import load_preset
 from syneepose.robots.ee_models import load_ee_mesh

@@ -22,6 +22,7 @@ from kernel.camera import project
 from kernel.errors import UserError
 from kernel.settings import Section, number_range, validate
 from kernel.transforms import make_T
+from syneepose.colour import LUMINANCE, linear_to_srgb8
 from syneepose.paths import named_yaml
 from syneepose.scene.spec import IR_RENDERS
 
@@ -136,9 +137,7 @@ def dot_pattern(profile: SensorProfile, ir_width: int, seed: int = 0) -> np.ndar
 
 def ir_to_gray(linear: np.ndarray) -> np.ndarray:
     """Rendered linear radiance -> 8-bit IR image (sRGB-encoded luminance, clipped like a sensor)."""
-    lum = linear[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
-    srgb = np.where(lum <= 0.0031308, 12.92 * lum, 1.055 * np.power(np.clip(lum, 0, None), 1 / 2.4) - 0.055)
-    return np.round(np.clip(srgb, 0, 1) * 255).astype(np.uint8)
+    return linear_to_srgb8(linear[..., :3] @ LUMINANCE)
 
 
 def stereo_depth(left: np.ndarray, right: np.ndarray, profile: SensorProfile, K_ir: np.ndarray) -> np.ndarray:

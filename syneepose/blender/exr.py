@@ -26,15 +26,3 @@ def read_passes(path: Path) -> dict[str, np.ndarray]:
         else:
             out[name] = pixels
     return out
-
-
-def linear_to_srgb8(rgb: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 transfer function (Blender's 'Standard' view), to 8 bits."""
-    rgb = np.clip(rgb, 0.0, 1.0)
-    srgb = np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * np.power(rgb, 1.0 / 2.4) - 0.055)
-    return np.round(srgb * 255.0).astype(np.uint8)
-
-
-def srgb_to_linear(c):
-    c = np.asarray(c, dtype=float)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)

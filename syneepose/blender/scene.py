@@ -17,7 +17,8 @@ import numpy as np
 import trimesh
 
 from kernel.errors import UserError
-from syneepose.blender.exr import read_passes, srgb_to_linear
+from syneepose.blender.exr import read_passes
+from syneepose.colour import srgb_to_linear
 from syneepose.devices import GPU_BACKENDS, gpu_backend
 from syneepose.robots.model import RobotModel
 from syneepose.robots.robot import arm_links

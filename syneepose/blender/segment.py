@@ -10,7 +10,7 @@ import numpy as np
 from kernel.bop import MAX_DEPTH, Frame, SceneMeta, SceneWriter
 from kernel.transforms import inv_T
 from syneepose.blender import scene as bscene
-from syneepose.blender.exr import linear_to_srgb8
+from syneepose.colour import linear_to_srgb8
 from syneepose.blender.stereo import IrRig
 from syneepose.ir_shading import Lighting
 from syneepose.robots.catalog import load_catalog

@@ -10,7 +10,7 @@ import numpy as np
 from kernel.template_set import Template, TemplateSetWriter
 from syneepose.templates import intrinsics, poses, roll_template
 from syneepose.blender import scene as bscene
-from syneepose.blender.exr import linear_to_srgb8
+from syneepose.colour import linear_to_srgb8
 from syneepose.robots.ee_models import rigid_mesh
 from syneepose.robots.kinematics import Kinematics
 from syneepose.robots.model import RobotModel

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from kernel.transforms import make_T
+from syneepose.colour import srgb_to_linear
 from syneepose.preset import Preset
 from syneepose.scene.spec import Distractor, Light, Plane, SegmentSpec, Surface
 
@@ -41,7 +42,7 @@ def kelvin_to_rgb(kelvin: float) -> tuple[float, float, float]:
     g = 99.4708025861 * np.log(t) - 161.1195681661 if t <= 66 else 288.1221695283 * (t - 60) ** -0.0755148492
     b = 255.0 if t >= 66 else (0.0 if t <= 19 else 138.5177312231 * np.log(t - 10) - 305.0447927307)
     rgb = np.clip(np.array([r, g, b]) / 255.0, 0.0, 1.0)
-    rgb = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    rgb = srgb_to_linear(rgb)
     return tuple(float(c) for c in rgb / rgb.max())
 
 
