@@ -1,20 +1,22 @@
 """The IR pair of the active-stereo sensor shaded from G-buffers instead of path-traced (issue 36).
 
-Path-traced IR images carry Cycles' sampling noise, and that noise, not the matching, set the simulated
-depth noise (docs/syneepose.md, "Sensor-like depth"); a D435's IR image has little of it. Here each IR
-imager's G-buffer (depth, world normal and diffuse albedo of one pixel-centre ray, rendered by
-syneepose/blender/stereo.py) and a depth map seen from the projector (its shadow test) give each pixel's
-irradiance in closed form:
+Path-traced IR cost 8-12x an exact-depth frame. Here each IR imager's G-buffer (depth, world normal,
+diffuse and glossy colour and roughness of one pixel-centre ray, rendered by syneepose/blender/stereo.py)
+and a depth map seen from the projector (its shadow test) give each pixel's light in closed form:
 
 - the projector's dots averaged over the pixel's footprint on the surface's tangent plane (a summed-area
   table of the pattern: a dot lands anywhere within a pixel and moves its intensity continuously, which the
-  matcher's sub-pixel refinement needs), shadowed by what the projector does not see;
-- the scene's own lights and world at the profile's `ambient` share, unshadowed.
+  matcher's sub-pixel refinement needs), shadowed by what the projector does not see, returned by a
+  Lambertian lobe (albedo / pi) and a GGX specular one weighted by Cycles' glossy colour - the projector
+  sits between the imagers, so near-normal surfaces send the dots' specular reflection straight back, and a
+  black gripper (the Robotiq 3-finger's parts have no diffuse albedo) shows dots by it alone;
+- the scene's own lights and world at the profile's `ambient` share, unshadowed, Lambertian.
 
-A Lambertian surface returns albedo / pi of it. The imager then exposes both images alike (its auto-exposure
-brings the left image's 99th percentile to `white_level`) and adds shot and read noise (`full_well`,
-`read_noise`), the two parameters calibrated against Intel's RMS model with syneepose.blender.flat_patch.
-Glossy reflection, inter-reflection and the lights' shadows are left out.
+The imager then blurs, exposes both images alike (its auto-exposure brings the left image's 99th percentile
+to `white_level`), adds shot noise (`full_well`), encodes with the sRGB curve as the path-traced pair is,
+and adds read noise (`read_noise`); the noise parameters are calibrated against Intel's RMS model with
+syneepose.blender.flat_patch. Inter-reflection, the lights' shadows and their specular reflection are left
+out.
 """
 
 from __future__ import annotations
@@ -26,8 +28,8 @@ import numpy as np
 
 from kernel.camera import project
 from kernel.transforms import inv_T
+from syneepose.colour import LUMINANCE, linear_to_srgb
 
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 MAX_FOOTPRINT = 12.0  # pattern pixels a side: grazing pixels average at most this much of the pattern
 SHADOW_TOLERANCE = (0.002, 0.01)  # metres + fraction of depth a point may lie behind the projector's depth map
 EXPOSURE_PERCENTILE = 99.0
@@ -40,6 +42,8 @@ class GBuffer:
     depth: np.ndarray  # (h, w) metres along the optical axis; 0 where the ray hits nothing
     normal: np.ndarray  # (h, w, 3) unit normals in the base frame
     albedo: np.ndarray  # (h, w) luminance of the diffuse colour, linear
+    gloss: np.ndarray  # (h, w) luminance of the glossy colour (the specular lobe's weight)
+    roughness: np.ndarray  # (h, w) the surface's roughness (GGX alpha = roughness^2, as Blender's)
     K: np.ndarray
     T_base_cam: np.ndarray
 
@@ -182,6 +186,23 @@ def projector_sees(projector: Projector, points: np.ndarray) -> np.ndarray:
     return (z > 0) & (~inside | (z <= nearest * (1 + SHADOW_TOLERANCE[1]) + SHADOW_TOLERANCE[0]))
 
 
+def ggx_specular(normal: np.ndarray, to_light: np.ndarray, to_eye: np.ndarray, roughness: np.ndarray) -> np.ndarray:
+    """The GGX microfacet BRDF without its Fresnel factor, D G / (4 (n.l) (n.v)), with Smith's masking
+    (Walter et al., "Microfacet models for refraction through rough surfaces", EGSR 2007); unit vectors."""
+    alpha2 = np.maximum(roughness, 0.02) ** 4
+    half = to_light + to_eye
+    half /= np.maximum(np.linalg.norm(half, axis=-1, keepdims=True), 1e-9)
+    nh = np.clip(np.sum(normal * half, -1), 0.0, 1.0)
+    nl = np.clip(np.sum(normal * to_light, -1), 1e-3, 1.0)
+    nv = np.clip(np.sum(normal * to_eye, -1), 1e-3, 1.0)
+    d = alpha2 / (np.pi * (nh**2 * (alpha2 - 1) + 1) ** 2)
+
+    def g1(x):
+        return 2 * x / (x + np.sqrt(alpha2 + (1 - alpha2) * x**2))
+
+    return d * g1(nl) * g1(nv) / (4 * nl * nv)
+
+
 def radiance(g: GBuffer, projector: Projector, lighting: Lighting) -> np.ndarray:
     """Radiance (W / (m^2 sr), luminance) each pixel of the imager receives; where the ray hits nothing,
     the world's."""
@@ -189,11 +210,15 @@ def radiance(g: GBuffer, projector: Projector, lighting: Lighting) -> np.ndarray
     points = base_points(g)
     to_projector = projector.T_base_proj[:3, 3] - points
     r2 = np.maximum(np.sum(to_projector**2, -1), 1e-6)
-    cosine = np.maximum(np.sum(g.normal * to_projector, -1) / np.sqrt(r2), 0.0)
+    to_projector /= np.sqrt(r2)[..., None]
+    cosine = np.maximum(np.sum(g.normal * to_projector, -1), 0.0)
     dots = projector.intensity * dot_share(g, projector, points) * cosine / r2
     dots = np.where(projector_sees(projector, points), dots, 0.0)
-    irradiance = dots + lighting.irradiance(points, g.normal)
-    lit = g.albedo / np.pi * irradiance + g.albedo * lighting.world_radiance
+    to_eye = g.T_base_cam[:3, 3] - points
+    to_eye /= np.maximum(np.linalg.norm(to_eye, axis=-1, keepdims=True), 1e-9)
+    specular = g.gloss * ggx_specular(g.normal, to_projector, to_eye, g.roughness)
+    lit = (g.albedo / np.pi * (dots + lighting.irradiance(points, g.normal)) + specular * dots
+           + g.albedo * lighting.world_radiance)
     return np.where(hit, lit, lighting.world_radiance)
 
 
@@ -201,15 +226,16 @@ def expose(left: np.ndarray, right: np.ndarray, psf_sigma: float, white_level: f
            read_noise: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """8-bit IR images as the imager records them: the optics' blur (Gaussian, `psf_sigma` pixels), one
     exposure for both (the left image's 99th percentile at `white_level` of full scale), shot noise of
-    `full_well` electrons at full scale, read noise (digital numbers, Gaussian), clipped and rounded."""
+    `full_well` electrons at full scale, the sRGB tone curve the path-traced pair is encoded with
+    (syneepose.stereo.ir_to_gray; it lifts a black gripper's faint dots as it lifts theirs), read noise (digital
+    numbers, Gaussian), clipped and rounded."""
     if psf_sigma > 0:
         left, right = (cv2.GaussianBlur(image, (0, 0), psf_sigma) for image in (left, right))
     reference = np.percentile(left, EXPOSURE_PERCENTILE)
-    gain = white_level * 255.0 / reference if reference > 0 else 0.0
+    gain = white_level / reference if reference > 0 else 0.0
     images = []
     for image in (left, right):
-        signal = np.clip(image * gain, 0.0, None)
-        electrons = rng.poisson(signal * full_well / 255.0)
-        counts = electrons * 255.0 / full_well + rng.normal(0.0, read_noise, image.shape)
+        electrons = rng.poisson(np.clip(image * gain, 0.0, None) * full_well)
+        counts = 255.0 * linear_to_srgb(electrons / full_well) + rng.normal(0.0, read_noise, image.shape)
         images.append(np.round(np.clip(counts, 0, 255)).astype(np.uint8))
     return images[0], images[1]

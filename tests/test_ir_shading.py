@@ -6,6 +6,7 @@ import numpy as np
 from kernel.transforms import make_T
 from syneepose.ir_shading import (DotPattern, GBuffer, Lighting, Projector, base_points, dot_share, expose,
                                   projector_sees, radiance)
+from syneepose.colour import linear_to_srgb, srgb_to_linear
 from syneepose.scene.spec import Light
 
 
@@ -25,12 +26,13 @@ def test_box_mean_is_the_exact_mean_of_the_pattern_under_a_fractional_box():
     assert dots.box_mean(np.array([5.0, 5.0]), np.array([5.0, 7.0])) == 0.0  # an empty box
 
 
-def _wall(distance, size=(40, 30), f=30.0):
+def _wall(distance, size=(40, 30), f=30.0, albedo=0.5, gloss=0.0):
     """A G-buffer of a wall facing an imager at the origin of the base frame."""
     h, w = size[1], size[0]
     K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
     normal = np.broadcast_to([0.0, 0.0, -1.0], (h, w, 3)).copy()
-    return GBuffer(np.full((h, w), distance), normal, np.full((h, w), 0.5), K, np.eye(4))
+    return GBuffer(np.full((h, w), distance), normal, np.full((h, w), albedo), np.full((h, w), gloss),
+                   np.full((h, w), 0.4), K, np.eye(4))
 
 
 def test_a_wall_facing_a_projector_in_the_imager_averages_the_pattern_over_each_pixel():
@@ -73,13 +75,30 @@ def test_ambient_light_follows_the_inverse_square_law_and_the_world_adds_its_rad
     assert abs(near[centre] - world - 0.5 / np.pi * irradiance) < 1e-12
 
 
+def test_a_black_surface_facing_the_projector_returns_its_dots_by_the_specular_lobe():
+    """No diffuse albedo, the glossy colour of a dielectric: bright where it faces the projector and the
+    imager, dark when it is turned 40 deg away."""
+    lit = Projector(np.eye(4), DotPattern(np.full((180, 180), 255, np.uint8), 90.0), 1.0,
+                    np.full((30, 40), 1.0), np.eye(3))
+    lighting = Lighting.of([], (0, 0, 0), 0.0, 0.1)
+    facing = _wall(1.0, albedo=0.0, gloss=0.04)
+    turned = _wall(1.0, albedo=0.0, gloss=0.04)
+    turned.normal[:] = [np.sin(np.deg2rad(40)), 0.0, -np.cos(np.deg2rad(40))]
+    grey = _wall(1.0, albedo=0.5)
+    centre = (15, 20)
+    shine, side, diffuse = (radiance(g, lit, lighting)[centre] for g in (facing, turned, grey))
+    assert shine > 0.5 * diffuse and side < 0.01 * shine
+
+
 def test_exposure_is_shared_by_both_images_and_the_noise_is_seeded():
     rng = np.random.default_rng(1)
     left = rng.uniform(0.0, 2.0, (60, 80))
     right = 0.5 * left
     a = expose(left, right, 0.0, 0.8, 1e9, 0.0, np.random.default_rng([3, 0]))
-    assert abs(np.percentile(a[0], 99) - 204) <= 1  # the left image's 99th percentile at 80 % of full scale
-    assert abs(a[1].mean() - a[0].mean() / 2) < 0.6  # the right one under the same gain
+    white = 255 * linear_to_srgb(0.8)  # the left image's 99th percentile at 80 % of full scale, sRGB-encoded
+    assert abs(np.percentile(a[0], 99) - white) <= 1
+    decoded = [srgb_to_linear(image / 255.0) for image in a]
+    assert abs(decoded[1].mean() / decoded[0].mean() - 0.5) < 0.01  # the right one under the same gain
     noisy = [expose(left, right, 0.7, 0.8, 175.0, 1.0, np.random.default_rng([3, f])) for f in (0, 0, 1)]
     np.testing.assert_array_equal(noisy[0][0], noisy[1][0])
     assert (noisy[0][0] != noisy[2][0]).mean() > 0.5

@@ -20,8 +20,33 @@ import numpy as np
 from kernel.transforms import make_T
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import read_passes
+from syneepose.colour import LUMINANCE
 from syneepose.ir_shading import DotPattern, GBuffer, Lighting, Projector, expose, radiance
 from syneepose.stereo import SensorProfile, dot_pattern, ir_to_gray
+
+
+ROUGHNESS_AOV = "roughness"
+
+
+def _roughness_aov() -> None:
+    """Each Principled material writes its roughness to an AOV of the main layer: no Cycles pass holds it,
+    and the shaded IR's specular lobe needs it."""
+    layer = bpy.context.scene.view_layers[bscene.MAIN]
+    if ROUGHNESS_AOV not in layer.aovs:
+        aov = layer.aovs.add()
+        aov.name, aov.type = ROUGHNESS_AOV, "VALUE"
+    for material in bpy.data.materials:
+        nodes = material.node_tree.nodes if material.use_nodes else []
+        bsdf = next((n for n in nodes if n.type == "BSDF_PRINCIPLED"), None)
+        if bsdf is None or any(n.type == "OUTPUT_AOV" for n in nodes):
+            continue
+        out = nodes.new("ShaderNodeOutputAOV")
+        out.aov_name = ROUGHNESS_AOV
+        roughness = bsdf.inputs["Roughness"]
+        if roughness.is_linked:
+            material.node_tree.links.new(roughness.links[0].from_socket, out.inputs["Value"])
+        else:
+            out.inputs["Value"].default_value = roughness.default_value
 
 
 def _projector(profile: SensorProfile, pattern: np.ndarray):
@@ -85,6 +110,8 @@ class IrRig:
         self.lighting = lighting if lighting is not None else Lighting.of([], (0, 0, 0), 0.0, 0.0)
         self.projector = _projector(profile, pattern) if profile.ir_render == "pathtraced" else None
         self.dots = DotPattern(pattern, profile.projector["hfov_deg"])
+        if profile.ir_render == "shaded":
+            _roughness_aov()
         data = bpy.data.cameras.new("ir_camera")
         data.sensor_fit = "HORIZONTAL"
         data.sensor_width = 36.0
@@ -129,8 +156,9 @@ class IrRig:
         finally:
             path.unlink()
         depth = passes[f"{bscene.MAIN}.Depth"]
-        albedo = passes[f"{bscene.MAIN}.Diffuse Color"][..., :3] @ np.array([0.2126, 0.7152, 0.0722])
-        return GBuffer(np.where(depth < 1e9, depth, 0.0), passes[f"{bscene.MAIN}.Normal"], albedo, K, T_base_cam)
+        albedo, gloss = (passes[f"{bscene.MAIN}.{name} Color"][..., :3] @ LUMINANCE for name in ("Diffuse", "Glossy"))
+        return GBuffer(np.where(depth < 1e9, depth, 0.0), passes[f"{bscene.MAIN}.Normal"], albedo, gloss,
+                       passes[f"{bscene.MAIN}.{ROUGHNESS_AOV}"], K, T_base_cam)
 
     def _gbuffer_mode(self) -> dict:
         """One pixel-centre ray per pixel, no light: what the G-buffer passes need and nothing else."""
@@ -141,14 +169,14 @@ class IrRig:
         saved = self._common_mode()
         saved.update({"bounces": scene.cycles.max_bounces, "filter": scene.cycles.filter_width,
                       "world": background.default_value, "hidden": [(ob, ob.hide_render) for ob in lights],
-                      "passes": (main.use_pass_normal, main.use_pass_diffuse_color)})
+                      "passes": (main.use_pass_normal, main.use_pass_diffuse_color, main.use_pass_glossy_color)})
         scene.cycles.samples = 1
         scene.cycles.max_bounces = 0
         scene.cycles.filter_width = 0.01
         background.default_value = 0.0
         for ob in lights:
             ob.hide_render = True
-        main.use_pass_normal = main.use_pass_diffuse_color = True
+        main.use_pass_normal = main.use_pass_diffuse_color = main.use_pass_glossy_color = True
         return saved
 
     def _pathtraced(self, T_base_left: np.ndarray, T_base_right: np.ndarray, workdir: Path):
@@ -212,6 +240,6 @@ class IrRig:
         if "bounces" in saved:
             scene.cycles.max_bounces = saved["bounces"]
             scene.cycles.filter_width = saved["filter"]
-            main.use_pass_normal, main.use_pass_diffuse_color = saved["passes"]
+            main.use_pass_normal, main.use_pass_diffuse_color, main.use_pass_glossy_color = saved["passes"]
         if self.projector is not None:
             self.projector.hide_render = True
