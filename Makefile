@@ -68,6 +68,7 @@ bench: dataset
 	$(PY) benchmarks/assets_build.py
 	$(PY) benchmarks/render.py
 	$(PY) benchmarks/render_profile.py
+	$(PY) benchmarks/stereo_cost.py --pathtraced
 	$(PY) benchmarks/ray_scaling.py
 	$(PY) benchmarks/templates.py
 	$(PY) benchmarks/estimator.py --dataset $(DATA)
