@@ -99,7 +99,7 @@ class Lighting:
     """The scene's own light at the imagers, already scaled by the profile's `ambient` share: point-like
     lights (position, W/sr towards a surface, for area lights also their facing) and a uniform world."""
 
-    positions: np.ndarray  # (n, 3) base frame; suns: a far point along their direction
+    positions: np.ndarray  # (n, 3) base frame, of the point and area lights
     intensities: np.ndarray  # (n,) W/sr (area lights: along their facing, falling with its cosine)
     facings: np.ndarray  # (n, 3) unit direction an area light shines along; zeros: isotropic
     suns: np.ndarray  # (m, 3) unit directions towards each sun
