@@ -11,9 +11,8 @@ import pytest
 
 from kernel.bop import read_frame, read_scene, split_dir
 from kernel.transforms import make_T
-from syneepose.blender.flat_patch import INTEL_SUBPIXEL, plane_rms
 from syneepose.scene.spec import IR_RENDERS
-from syneepose.stereo import load_profile, refine_disparity, to_rgb_camera
+from syneepose.stereo import INTEL_SUBPIXEL, load_profile, plane_rms, refine_disparity, to_rgb_camera
 
 PLANE_SCRIPT = """
 import sys, numpy as np

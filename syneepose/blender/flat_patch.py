@@ -23,29 +23,7 @@ from kernel.files import write_atomic
 from kernel.transforms import make_T
 from syneepose.ir_shading import Lighting
 from syneepose.scene.spec import IR_RENDERS, Plane, Surface
-from syneepose.stereo import load_profile, stereo_depth, to_rgb_camera
-
-INTEL_SUBPIXEL = 0.08  # px, Intel's typical subpixel RMS for the D4xx on a textured flat target
-
-
-def plane_rms(depth: np.ndarray, K: np.ndarray, roi: float) -> tuple[float, float, float, float]:
-    """RMS (m) of the distances to the best-fit plane over the central `roi` fraction of the image (as
-    Intel's Depth Quality Tool), their robust sigma (1.4826 MAD: the spread without the mismatches), the
-    median depth and the fraction of ROI pixels with depth."""
-    h, w = depth.shape
-    dv, du = int(h * (1 - roi) / 2), int(w * (1 - roi) / 2)
-    z = depth[dv:h - dv, du:w - du]
-    v, u = np.nonzero(z > 0)
-    zs = z[v, u]
-    x = (u + du - K[0, 2]) / K[0, 0] * zs
-    y = (v + dv - K[1, 2]) / K[1, 1] * zs
-    P = np.stack([x, y, zs], 1)
-    centred = P - P.mean(0)
-    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
-    d = centred @ normal
-    robust = 1.4826 * np.median(np.abs(d - np.median(d)))
-    return float(np.sqrt(np.mean(d**2))), float(robust), float(np.median(zs)), float(len(zs) / z.size)
-
+from syneepose.stereo import INTEL_SUBPIXEL, load_profile, plane_rms, stereo_depth, to_rgb_camera
 
 def measure(distances: list[float], width: int, height: int, profile_name: str, roi: float,
             ir_render: str | None = None) -> list[dict]:
