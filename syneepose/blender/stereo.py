@@ -108,9 +108,11 @@ class IrRig:
         self.K_ir = profile.ir_K(width, height)
         pattern = dot_pattern(profile, self.ir_size[0], seed)
         self.lighting = lighting if lighting is not None else Lighting.of([], (0, 0, 0), 0.0, 0.0)
-        self.projector = _projector(profile, pattern) if profile.ir_render == "pathtraced" else None
-        self.dots = DotPattern(pattern, profile.projector["hfov_deg"])
-        if profile.ir_render == "shaded":
+        self.projector, self.dots = None, None  # the path-traced pair's spot light, or the shaded pair's pattern
+        if profile.ir_render == "pathtraced":
+            self.projector = _projector(profile, pattern)
+        else:
+            self.dots = DotPattern(pattern, profile.projector["hfov_deg"])
             _roughness_aov()
         data = bpy.data.cameras.new("ir_camera")
         data.sensor_fit = "HORIZONTAL"
