@@ -15,7 +15,7 @@ import numpy as np
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from eval.methods.feepe import arm_models, robot_view
-from feepe.depth import backproject
+from kernel.camera import backproject
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, mask_view
 from kernel.dataset import Dataset
 from kernel.transforms import inv_T, transform_points

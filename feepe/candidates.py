@@ -13,13 +13,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from feepe.crop import Crop, crop_around_mask
-from feepe.depth import backproject, depth_at
+from feepe.depth import depth_at
 from feepe.icp import SurfaceModel
 from feepe.matching import best_buddies
 from feepe.onboarding import TemplateBank
 from feepe.pnp import solve_pnp
 from feepe.segmentation import Segmentation
 from feepe.silhouette import MaskView
+from kernel.camera import backproject
 from kernel.errors import UserError
 
 

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from feepe.depth import backproject
+from kernel.camera import backproject
 from kernel.transforms import make_T
 
 MIN_DEPTH_PX = 20  # masked pixels with depth needed for a centre

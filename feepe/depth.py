@@ -1,16 +1,11 @@
-"""Depth images as geometry: back-projection and camera-frame surface normals."""
+"""Depth images as geometry: depth at pixels and camera-frame surface normals (back-projection: kernel.camera)."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-
-def backproject(uv: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Pixels (N, 2) with depths (N,) along the optical axis -> camera points (N, 3)."""
-    x = (uv[:, 0] - K[0, 2]) / K[0, 0]
-    y = (uv[:, 1] - K[1, 2]) / K[1, 1]
-    return np.stack([x * z, y * z, z], 1)
+from kernel.camera import point_map
 
 
 def depth_at(depth: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -22,12 +17,6 @@ def depth_at(depth: np.ndarray, uv: np.ndarray) -> np.ndarray:
     out = np.zeros(len(uv))
     out[ok] = depth[v[ok], u[ok]]
     return out
-
-
-def point_map(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
-    h, w = depth.shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    return np.stack([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth], -1)
 
 
 def normal_map(depth: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

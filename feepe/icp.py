@@ -18,8 +18,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from feepe.depth import backproject
 from feepe.optimize import jacobian_row, robust_sigma
+from kernel.camera import backproject
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
 

@@ -19,7 +19,8 @@ import numpy as np
 
 from feepe.bow import BowIndex, build_index
 from feepe.crop import crop_around_mask
-from feepe.depth import backproject, depth_at
+from feepe.depth import depth_at
+from kernel.camera import backproject
 from kernel.errors import UserError
 from kernel.files import write_atomic
 from kernel.template_set import INDEX, image_paths, read_index, read_template

@@ -22,9 +22,10 @@ import numba
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from feepe.depth import normal_map, point_map
+from feepe.depth import normal_map
 from feepe.icp import PlaneTerm, SurfaceModel, associate
 from feepe.optimize import OptimizeOptions, optimize, stack
+from kernel.camera import point_map
 from kernel.transforms import make_T, rotation_angle
 
 

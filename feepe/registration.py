@@ -19,10 +19,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from feepe.depth import normal_map, point_map
+from feepe.depth import normal_map
 from feepe.icp import PlaneTerm, SurfaceModel, associate
 from feepe.optimize import OptimizeOptions, optimize, stack
 from feepe.ppf import PpfDetector, PpfOptions, voxel_sample
+from kernel.camera import point_map
 from kernel.transforms import rotation_angle
 
 PPF = PpfOptions(sampling=0.04, scene_step=1, max_references=1000, hypotheses=24)  # robot-sized: 4-6 cm voxels on

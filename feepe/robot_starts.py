@@ -18,7 +18,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from feepe.depth import backproject
+from kernel.camera import backproject
 from kernel.transforms import inv_T, make_T, transform_points
 
 N_ROTATIONS = 2000  # uniform on SO(3): neighbours about 15 deg apart

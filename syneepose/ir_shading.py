@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from kernel.camera import project
+from kernel.camera import backproject, point_map, project
 from kernel.transforms import inv_T
 from syneepose.colour import LUMINANCE, linear_to_srgb
 
@@ -139,25 +139,18 @@ class Lighting:
         return out
 
 
-def base_points(g: GBuffer) -> np.ndarray:
-    h, w = g.depth.shape
-    u, v = np.meshgrid(np.arange(w), np.arange(h))
-    rays = np.stack([(u - g.K[0, 2]) / g.K[0, 0], (v - g.K[1, 2]) / g.K[1, 1], np.ones((h, w))], -1)
-    return (rays * g.depth[..., None]) @ g.T_base_cam[:3, :3].T + g.T_base_cam[:3, 3]
-
-
-def dot_share(g: GBuffer, projector: Projector, points: np.ndarray) -> np.ndarray:
+def dot_share(g: GBuffer, projector: Projector, points_cam: np.ndarray) -> np.ndarray:
     """The mean of the pattern over each pixel's footprint: the pixel's four corner rays met with the tangent
-    plane of its centre's surface, taken to the pattern, and the pattern averaged over their bounding box."""
+    plane of its centre's surface (`points_cam`: the imager's point map), taken to the pattern, and the
+    pattern averaged over their bounding box."""
     h, w = g.depth.shape
     T_proj_cam = inv_T(projector.T_base_proj) @ g.T_base_cam
     normals_cam = g.normal @ g.T_base_cam[:3, :3]
-    centre = (points - g.T_base_cam[:3, 3]) @ g.T_base_cam[:3, :3]
-    offset = np.sum(normals_cam * centre, -1)
-    u, v = np.meshgrid(np.arange(w), np.arange(h))
+    offset = np.sum(normals_cam * points_cam, -1)
+    pixels = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1)
     corners = []
     for du, dv in ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)):
-        ray = np.stack([(u + du - g.K[0, 2]) / g.K[0, 0], (v + dv - g.K[1, 2]) / g.K[1, 1], np.ones((h, w))], -1)
+        ray = backproject(pixels + (du, dv), np.ones((h, w)), g.K)
         facing = np.sum(normals_cam * ray, -1)
         t = np.where(np.abs(facing) > 1e-6, offset / np.where(np.abs(facing) > 1e-6, facing, 1.0), g.depth)
         t = np.clip(t, 0.5 * g.depth, 2.0 * g.depth)  # grazing: the footprint stays near the pixel's own depth
@@ -207,12 +200,13 @@ def radiance(g: GBuffer, projector: Projector, lighting: Lighting) -> np.ndarray
     """Radiance (W / (m^2 sr), luminance) each pixel of the imager receives; where the ray hits nothing,
     the world's."""
     hit = g.depth > 0
-    points = base_points(g)
+    points_cam = point_map(g.depth, g.K)
+    points = points_cam @ g.T_base_cam[:3, :3].T + g.T_base_cam[:3, 3]
     to_projector = projector.T_base_proj[:3, 3] - points
     r2 = np.maximum(np.sum(to_projector**2, -1), 1e-6)
     to_projector /= np.sqrt(r2)[..., None]
     cosine = np.maximum(np.sum(g.normal * to_projector, -1), 0.0)
-    dots = projector.intensity * dot_share(g, projector, points) * cosine / r2
+    dots = projector.intensity * dot_share(g, projector, points_cam) * cosine / r2
     dots = np.where(projector_sees(projector, points), dots, 0.0)
     to_eye = g.T_base_cam[:3, 3] - points
     to_eye /= np.maximum(np.linalg.norm(to_eye, axis=-1, keepdims=True), 1e-9)

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 from pydantic import Field, field_validator
 
-from kernel.camera import project
+from kernel.camera import backproject, project
 from kernel.errors import UserError
 from kernel.settings import Section, number_range, validate
 from kernel.transforms import make_T
@@ -51,13 +51,20 @@ class SensorProfile:
         return int(round(width * self.ir_scale)), int(round(height * self.ir_scale))
 
     def ir_K(self, width: int, height: int) -> np.ndarray:
-        w, h = self.ir_size(width, height)
-        f = w / 2 / np.tan(np.deg2rad(self.ir_hfov_deg) / 2)
-        return np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]])
+        return _centred_K(*self.ir_size(width, height), self.ir_hfov_deg)
+
+    def projector_K(self, width: int, height: int) -> np.ndarray:
+        """The projector's depth map (its shadow test) at the IR size, over the pattern's field of view."""
+        return _centred_K(*self.ir_size(width, height), self.projector["hfov_deg"])
 
     @property
     def T_irleft_irright(self) -> np.ndarray:
         return make_T(t=[self.baseline, 0.0, 0.0])
+
+
+def _centred_K(w: int, h: int, hfov_deg: float) -> np.ndarray:
+    f = w / 2 / np.tan(np.deg2rad(hfov_deg) / 2)
+    return np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]])
 
 
 class _Projector(Section):
@@ -218,7 +225,7 @@ def to_rgb_camera(depth_ir: np.ndarray, K_ir: np.ndarray, T_rgb_ir: np.ndarray, 
     RGB pixel centres inside its footprint (the projected pixel square); the nearest surface wins."""
     v, u = np.nonzero(depth_ir > 0)
     z = depth_ir[v, u]
-    pts = np.stack([(u - K_ir[0, 2]) / K_ir[0, 0] * z, (v - K_ir[1, 2]) / K_ir[1, 1] * z, z], 1)
+    pts = backproject(np.stack([u, v], 1), z, K_ir)
     pts = pts @ T_rgb_ir[:3, :3].T + T_rgb_ir[:3, 3]
     zr = pts[:, 2]
     front = zr > 0

@@ -6,8 +6,7 @@ import trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from feepe import raster
-from feepe.depth import backproject
-from kernel.camera import project
+from kernel.camera import backproject, project
 from kernel.transforms import inv_T
 
 K = np.array([[300.0, 0, 80], [0, 300.0, 60], [0, 0, 1]])

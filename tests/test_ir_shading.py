@@ -3,10 +3,10 @@ projector's shadow test, the ambient light, and the imager's exposure and noise 
 
 import numpy as np
 
+from kernel.camera import point_map
 from kernel.transforms import make_T
-from syneepose.ir_shading import (DotPattern, GBuffer, Lighting, Projector, base_points, dot_share, expose,
-                                  projector_sees, radiance)
 from syneepose.colour import linear_to_srgb, srgb_to_linear
+from syneepose.ir_shading import DotPattern, GBuffer, Lighting, Projector, dot_share, expose, projector_sees, radiance
 from syneepose.scene.spec import Light
 
 
@@ -42,7 +42,7 @@ def test_a_wall_facing_a_projector_in_the_imager_averages_the_pattern_over_each_
     size = 180  # over 90 deg: a focal length of 90 pattern pixels, 3x the imager's 30
     pattern = _pattern(size)
     projector = Projector(np.eye(4), DotPattern(pattern, 90.0), 1.0, np.full((30, 40), 1.3), g.K)
-    share = dot_share(g, projector, base_points(g))
+    share = dot_share(g, projector, point_map(g.depth, g.K))
     # imager pixel (u, v) spans pattern columns 3 (u - cx) + size / 2 -/+ 1.5
     v, u = 12, 17
     c0 = int(round(3 * (u - g.K[0, 2]) + size / 2 - 1.5))
@@ -55,7 +55,7 @@ def test_what_the_projector_does_not_see_gets_no_dots():
     seen = np.full((30, 40), 2.0)
     seen[:, :20] = 1.0  # something nearer hides the left half of the wall from the projector
     projector = Projector(np.eye(4), DotPattern(np.full((90, 90), 255, np.uint8), 90.0), 1.0, seen, g.K)
-    lit = projector_sees(projector, base_points(g))
+    lit = projector_sees(projector, point_map(g.depth, g.K))  # the imager at the base frame's origin
     assert not lit[:, :19].any() and lit[:, 21:].all()
     image = radiance(g, projector, Lighting.of([], (0, 0, 0), 0.0, 0.1))
     assert (image[:, :19] == 0).all() and (image[:, 21:] > 0).all()
@@ -69,7 +69,8 @@ def test_ambient_light_follows_the_inverse_square_law_and_the_world_adds_its_rad
     world = 0.1 * 1.0 * 0.2 * 0.5  # share x strength x colour's luminance x albedo
     centre = (15, 20)
     assert abs((near[centre] - world) / (far[centre] - world) - 4.0) < 0.01
-    point = base_points(_wall(1.0))[centre]
+    wall = _wall(1.0)
+    point = point_map(wall.depth, wall.K)[centre]
     r = np.linalg.norm(point)
     irradiance = 0.1 * 100 / (4 * np.pi) * (point[2] / r) / r**2  # share x P / (4 pi) x cosine / r^2
     assert abs(near[centre] - world - 0.5 / np.pi * irradiance) < 1e-12

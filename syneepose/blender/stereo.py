@@ -121,10 +121,7 @@ class IrRig:
         self.camera = bpy.data.objects.new("ir_camera", data)
         bpy.context.scene.collection.objects.link(self.camera)
         self.T_irleft_projector = make_T(t=[profile.projector["offset"], 0.0, 0.0])
-        w = self.ir_size[0]
-        f_projector = w / 2 / np.tan(np.deg2rad(profile.projector["hfov_deg"]) / 2)
-        self.K_projector = np.array([[f_projector, 0.0, (w - 1) / 2], [0.0, f_projector, (self.ir_size[1] - 1) / 2],
-                                     [0.0, 0.0, 1.0]])
+        self.K_projector = profile.projector_K(width, height)
 
     def render_pair(self, T_base_rgb: np.ndarray, workdir: Path, frame: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """The 8-bit IR pair; `frame` seeds the shaded images' sensor noise (with the rig's seed)."""
@@ -146,10 +143,14 @@ class IrRig:
                       imager["psf_sigma"], imager["white_level"], imager["full_well"], imager["read_noise"],
                       np.random.default_rng([self.seed, frame]))
 
-    def _gbuffer(self, T_base_cam: np.ndarray, K: np.ndarray, workdir: Path) -> GBuffer:
-        scene = bpy.context.scene
+    def _aim(self, T_base_cam: np.ndarray, K: np.ndarray) -> None:
+        """The IR camera at a pose, with K's focal length (its principal point is the image centre)."""
         self.camera.data.lens = K[0, 0] * 36.0 / self.ir_size[0]
         self.camera.matrix_world = (T_base_cam @ bscene.BLENDER_FROM_OPENCV).T.tolist()
+
+    def _gbuffer(self, T_base_cam: np.ndarray, K: np.ndarray, workdir: Path) -> GBuffer:
+        scene = bpy.context.scene
+        self._aim(T_base_cam, K)
         path = Path(workdir) / ".gbuffer.exr"
         scene.render.filepath = str(path)
         bpy.ops.render.render(write_still=True)
@@ -183,12 +184,11 @@ class IrRig:
 
     def _pathtraced(self, T_base_left: np.ndarray, T_base_right: np.ndarray, workdir: Path):
         scene = bpy.context.scene
-        self.camera.data.lens = self.K_ir[0, 0] * 36.0 / self.ir_size[0]
         saved = self._ir_mode(T_base_left)
         try:
             images = []
             for T in (T_base_left, T_base_right):
-                self.camera.matrix_world = (T @ bscene.BLENDER_FROM_OPENCV).T.tolist()
+                self._aim(T, self.K_ir)
                 fd_path = Path(workdir) / f".ir{len(images)}.exr"
                 scene.render.filepath = str(fd_path)
                 bpy.ops.render.render(write_still=True)
