@@ -25,7 +25,6 @@ from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.robot import load_robot
 from syneepose.scene.motion import MotionChecks
 from syneepose.scene.plan import plan_segment
-from syneepose.scene.spec import RenderSettings
 
 
 def render_call(path: Path) -> float:
@@ -47,8 +46,7 @@ def main() -> None:
     spec = plan_segment(preset, robot, MotionChecks(robot, mesh), 0, 0, preset.frames, *preset.resolution)
     plan_s = time.perf_counter() - start
     start = time.perf_counter()
-    objects = build_scene(spec, RenderSettings(*preset.resolution, preset.samples, preset.render.denoise,
-                                               preset.render.max_bounces), robot)
+    objects = build_scene(spec, preset.render_settings(), robot)
     build_s = time.perf_counter() - start
     frames = np.linspace(0, preset.frames - 1, args.frames).round().astype(int)
     steps = {"FK and object poses": [], "render call": [], "EXR read": [], "BOP write": []}

@@ -1,11 +1,11 @@
 """Cycles settings for `mini` chosen by measurement: seconds per frame and RGB PSNR against a 256-spp
 reference (no denoiser, 12 bounces) for today's settings and alternatives, on the same planned frames.
 
-Each variant changes one thing, or a few, against today's (16 spp, OIDN denoiser, 8 bounces, light tree,
-no adaptive sampling; the EE-only layer undenoised and emission-shaded); times are the render call per
+Each variant changes one thing, or a few, against today's (scenes/mini.yaml: 8 spp, OIDN denoiser with the
+fast prefilter, 8 bounces, light tree, no adaptive sampling; the EE-only layer undenoised and emission-shaded); times are the render call per
 frame (Cycles and its EXR; the scene build excluded), the variants interleaved frame by frame so a noisy
 machine slows them alike. Prints figures, asserts nothing:
-`.venv/bin/python benchmarks/render_settings.py [--configs A+B,...] [--frames N]`.
+`.venv/bin/python benchmarks/render_settings.py [--configs A+B,...] [--frames N] [--variants "A;B"]`.
 """
 
 import argparse
@@ -23,7 +23,6 @@ from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.robot import load_robot
 from syneepose.scene.motion import MotionChecks
 from syneepose.scene.plan import plan_segment
-from syneepose.scene.spec import RenderSettings
 
 REFERENCE = {"samples": 256, "use_denoising": False, "max_bounces": 12}
 
@@ -32,18 +31,20 @@ LIGHT_TREE_OFF = {"use_light_tree": False}
 BOUNCES_4 = {"max_bounces": 4, "diffuse_bounces": 2, "glossy_bounces": 2}
 ALBEDO_ONLY = {"denoising_input_passes": "RGB_ALBEDO"}
 NO_CAUSTICS = {"caustics_reflective": False, "caustics_refractive": False}
+BALANCED = {"denoising_quality": "BALANCED"}
+ACCURATE = {"denoising_prefilter": "ACCURATE"}
 VARIANTS = {
-    "today (16 spp, OIDN, 8 bounces)": [],
-    "OIDN prefilter FAST": [{"denoising_prefilter": "FAST"}],
-    "OIDN quality BALANCED": [{"denoising_quality": "BALANCED"}],
+    "today (mini.yaml: 8 spp, OIDN prefilter fast)": [],
+    "before issue 36 (16 spp, OIDN prefilter accurate)": [{"samples": 16}, ACCURATE],
+    "16 spp": [{"samples": 16}],
+    "12 spp": [{"samples": 12}],
+    "OIDN prefilter accurate": [ACCURATE],
+    "OIDN quality BALANCED": [BALANCED],
     "OIDN on RGB + albedo (no normal)": [ALBEDO_ONLY],
-    "8 spp": [{"samples": 8}],
     "4 bounces (diffuse/glossy 2)": [BOUNCES_4],
     "caustics off": [NO_CAUSTICS],
     "light tree off": [LIGHT_TREE_OFF],
     "light tree off, 4 bounces": [LIGHT_TREE_OFF, BOUNCES_4],
-    "light tree off, 4 bounces, caustics off": [LIGHT_TREE_OFF, BOUNCES_4, NO_CAUSTICS],
-    "light tree off, 4 bounces, RGB + albedo": [LIGHT_TREE_OFF, BOUNCES_4, ALBEDO_ONLY],
     "light tree off, 4 bounces, caustics off, RGB + albedo": [LIGHT_TREE_OFF, BOUNCES_4, NO_CAUSTICS, ALBEDO_ONLY],
 }
 
@@ -58,8 +59,7 @@ def build(config: str, frame_count: int, seed: int):
 
 def render_frame(robot, spec, preset, changes: list, frame: int) -> tuple[np.ndarray, float]:
     """A fresh scene with `changes` applied, one frame: (sRGB as float, seconds in Blender's render call)."""
-    objects = build_scene(spec, RenderSettings(*preset.resolution, preset.samples, preset.render.denoise,
-                                               preset.render.max_bounces), robot)
+    objects = build_scene(spec, preset.render_settings(), robot)
     for part in changes:
         for key, value in part.items():
             setattr(bpy.context.scene.cycles, key, value)
@@ -77,23 +77,30 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--configs", default="ur5e+robotiq_2f85,panda+panda_hand,ur10e+shadow_hand")
     parser.add_argument("--frames", type=int, default=2, help="frames per configuration, spread over a segment")
+    parser.add_argument("--variants", default="",
+                        help="names separated by ; to run beside today's (default: all)")
     args = parser.parse_args()
+    chosen = [name for name in VARIANTS if name in args.variants.split(";")]
+    variants = {name: VARIANTS[name] for name in [next(iter(VARIANTS)), *chosen]} if args.variants else VARIANTS
+    unknown = sorted(set(args.variants.split(";")) - set(VARIANTS) - {""})
+    if unknown:
+        parser.error(f"unknown variant(s) {unknown}; choose from {list(VARIANTS)}")
     n = load_preset("mini").frames
     frames = sorted({round(k * (n - 1) / max(args.frames - 1, 1)) for k in range(args.frames)})
-    results = {name: ([], []) for name in VARIANTS}
+    results = {name: ([], []) for name in variants}
     for seed, config in enumerate(args.configs.split(",")):
         robot, spec, preset = build(config, n, seed)
         for frame in frames:
             reference, _ = render_frame(robot, spec, preset, [REFERENCE], frame)
-            for name, change in VARIANTS.items():
+            for name, change in variants.items():
                 image, seconds = render_frame(robot, spec, preset, change, frame)
                 results[name][0].append(psnr(image, reference))
                 results[name][1].append(seconds)
-    base = np.mean(results[next(iter(VARIANTS))][1])
+    base = np.mean(results[next(iter(variants))][1])
     print(f"mini, 320x240, {len(frames)} frames x {len(args.configs.split(','))} configurations; "
           "PSNR against 256 spp / no denoiser / 12 bounces")
     for name, (psnrs, seconds) in results.items():
-        print(f"  {name:34s} {np.mean(seconds):5.2f} s/frame (x{np.mean(seconds) / base:.2f})  "
+        print(f"  {name:40s} {np.mean(seconds):5.2f} s/frame (x{np.mean(seconds) / base:.2f})  "
               f"PSNR {np.mean(psnrs):5.2f} dB (min {np.min(psnrs):5.2f})")
 
 

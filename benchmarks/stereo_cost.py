@@ -25,7 +25,6 @@ from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.robot import load_robot
 from syneepose.scene.motion import MotionChecks
 from syneepose.scene.plan import plan_segment
-from syneepose.scene.spec import RenderSettings
 from syneepose.stereo import load_profile, stereo_depth, to_rgb_camera
 
 
@@ -40,8 +39,7 @@ def main() -> None:
     mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name))
     width, height = preset.resolution
     spec = plan_segment(preset, robot, MotionChecks(robot, mesh), 0, 0, args.frames, width, height)
-    objects = build_scene(spec, RenderSettings(width, height, preset.samples, preset.render.denoise,
-                                               preset.render.max_bounces), robot)
+    objects = build_scene(spec, preset.render_settings(), robot)
     shaded = load_profile("d435", "shaded")
     lighting = Lighting.of(spec.lights, spec.world_color, spec.world_strength, shaded.ambient)
     rigs = {"shaded": IrRig(shaded, width, height, seed=spec.stream, lighting=lighting)}

@@ -1,7 +1,7 @@
 """A FEEPE template set on disk: one folder per end-effector, `<ee>_<views>x<inplane>_<res>px/`, holding
 `rgb/`, `depth/`, `mask/` (`<id:06d>.png`, depth in `depth_scale` mm units, 0 off the object) and
 `templates.json` ({id: view, inplane, cam_K, T_cam_model (metres), depth_scale, obj_id, samples, inplane_by:
-rotated | rendered}).
+rotated | rendered, denoise_prefilter: fast | accurate}).
 The generator writes sets (`python -m syneepose templates`); the estimator only reads them."""
 
 from __future__ import annotations
@@ -71,10 +71,11 @@ def read_index(folder: Path) -> dict:
     return read_json(path, "delete the template set folder and render it again")
 
 
-def check_recipe(folder: Path, samples: int, inplane: str, complete: bool) -> None:
-    """A set is made one way: one sample count and one way to make in-plane rotations (`inplane_by`, "rendered"
-    for sets from before it was recorded); a rerun that asks for another would mix two kinds of template. A
-    complete set made the other way is used as it is (rendered rotations are the exact reference)."""
+def check_recipe(folder: Path, samples: int, inplane: str, complete: bool, prefilter: str) -> None:
+    """A set is made one way: one sample count, one way to make in-plane rotations (`inplane_by`, "rendered"
+    for sets from before it was recorded) and one denoiser prefilter ("accurate" before it was recorded); a
+    rerun that asks for another would mix two kinds of template. A complete set made another way is used as
+    it is (rendered rotations are the exact reference)."""
     if not (Path(folder) / INDEX).is_file():
         return
     records = read_index(folder).values()
@@ -86,6 +87,10 @@ def check_recipe(folder: Path, samples: int, inplane: str, complete: bool) -> No
     if other and not complete:
         raise UserError(f"{folder} holds in-plane rotations {other[0]}, not {inplane}; rerun with --inplane-by "
                         f"{other[0]} to resume, or delete the folder to render it again")
+    other = sorted({r.get("denoise_prefilter", "accurate") for r in records} - {prefilter})
+    if other and not complete:
+        raise UserError(f"{folder} was denoised with the {other[0]} prefilter of an older SynEEPose, not today's "
+                        f"{prefilter}; delete the folder to render it again")
 
 
 def read_template(folder: Path, template_id: int, index: dict | None = None) -> Template:
@@ -107,8 +112,9 @@ class TemplateSetWriter:
     rotations) and rewrites the index once for it: rewriting it per template made a 960-template set spend
     a third of its time serialising the growing index."""
 
-    def __init__(self, folder: Path, obj_id: int, samples: int, inplane_by: str):
+    def __init__(self, folder: Path, obj_id: int, samples: int, inplane_by: str, prefilter: str):
         self.folder, self.obj_id, self.samples, self.inplane_by = Path(folder), obj_id, samples, inplane_by
+        self.prefilter = prefilter
         self.index = read_index(self.folder) if (self.folder / INDEX).is_file() else {}
         for sub in IMAGES:
             (self.folder / sub).mkdir(parents=True, exist_ok=True)
@@ -125,5 +131,5 @@ class TemplateSetWriter:
             self.index[str(template.id)] = {
                 "view": template.view, "inplane": template.inplane, "cam_K": template.K.ravel().tolist(),
                 "T_cam_model": template.T_cam_model.tolist(), "depth_scale": DEPTH_SCALE, "obj_id": self.obj_id,
-                "samples": self.samples, "inplane_by": self.inplane_by}
+                "samples": self.samples, "inplane_by": self.inplane_by, "denoise_prefilter": self.prefilter}
         write_atomic(self.folder / INDEX, json.dumps(self.index, indent=2, sort_keys=True).encode())

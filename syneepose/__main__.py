@@ -119,7 +119,6 @@ def _plan_render(args) -> Phase:
                                 make_jobs, parse_shard, run_job, write_dataset_info, write_root_files)
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
-    from syneepose.scene.spec import RenderSettings
 
     _check_run(args)
     preset = load_preset(args.preset, {"segments": args.segments, "frames": args.frames, "samples": args.samples,
@@ -142,8 +141,8 @@ def _plan_render(args) -> Phase:
     build_assets(assets, configs, log=lambda *_: None)
     content = SceneContent(preset, args.preset, args.seed, args.marker, backgrounds)
     width, height = preset.resolution
-    render = RenderSettings(width, height, preset.samples, preset.render.denoise, preset.render.max_bounces,
-                            args.device, args.depth, args.sensor, _threads(args), args.sensor_render)
+    render = preset.render_settings(device=args.device, depth=args.depth, sensor=args.sensor, threads=_threads(args),
+                                    sensor_render=args.sensor_render)
     plan = make_jobs(content, render, SegmentSelection(tuple(configs), preset.segments, shard), out, assets)
     jobs = plan.jobs
     stale = resume.check_resume(out, jobs, plan.settings, args.overwrite, legacy_preset_digests(content))
@@ -258,6 +257,7 @@ def _plan_templates(args) -> Phase:
     from syneepose.jobs import TemplateJob, run_template_job, templates_done, write_own_model
     from syneepose.robots.build import build_assets
     from syneepose.robots.catalog import load_catalog
+    from syneepose.templates import DENOISE_PREFILTER
 
     _check_run(args)
     catalog = load_catalog()
@@ -278,7 +278,7 @@ def _plan_templates(args) -> Phase:
         print(f"templates: the end-effector's model (mm, in {args.ee_link}'s frame) in {model_path}")
     done_before = {j: templates_done(j) for j in jobs}
     for job in jobs:
-        check_recipe(job.folder, job.samples, job.inplane_by, done_before[job] >= job.frames)
+        check_recipe(job.folder, job.samples, job.inplane_by, done_before[job] >= job.frames, DENOISE_PREFILTER)
     per_render = _render_seconds(settings.resolution**2, settings.samples)
     return Phase("templates", "template", run_template_job, jobs, done_before,
                  per_render / settings.inplane if args.inplane_by == "rotated" else per_render, lambda: None,

@@ -20,8 +20,12 @@ EXAMPLE = "scenes/mini.yaml"
 MAX_SIDE_PX = 8192  # a render side beyond this is a typo, not a data set (100000x100000 would never finish)
 
 
+PREFILTERS = ("accurate", "fast", "none")  # Cycles' denoising_prefilter: how the denoiser cleans its albedo and normal
+
+
 class Render(Section):
     denoise: bool = False
+    denoise_prefilter: Literal[PREFILTERS] = "accurate"
     max_bounces: int = Field(12, ge=0, le=1024)
 
 
@@ -111,17 +115,30 @@ class Preset(Section):
     marker: Marker | None = None
     stations: Stations | None = None
 
+    def render_settings(self, **run) -> RenderSettings:
+        """The preset's render choices with the run's (`run`: RenderSettings' device, depth, threads, ...)."""
+        from syneepose.scene.spec import RenderSettings  # the spec's marker module reads this one's sections
+
+        return RenderSettings(*self.resolution, self.samples, self.render.denoise, self.render.max_bounces,
+                              denoise_prefilter=self.render.denoise_prefilter, **run)
+
     def digest_content(self) -> dict:
         """Every value that fixes the rendered frames, defaults included: two YAMLs that render alike compare
         equal. Not `templates`: a template set records its own recipe (kernel/template_set.py), and mini's
-        going from 240 to 960 templates must not make its frames "other settings"."""
-        return self.model_dump(mode="json", exclude={"templates"})
+        going from 240 to 960 templates must not make its frames "other settings". The prefilter counts only
+        when it is not Cycles' default, the one every preset rendered with before it could be chosen (issue 36),
+        so those data sets keep their digest."""
+        content = self.model_dump(mode="json", exclude={"templates"})
+        if content["render"]["denoise_prefilter"] == "accurate":
+            del content["render"]["denoise_prefilter"]
+        return content
 
     def legacy_digest_contents(self) -> list[dict]:
         """What digest_content was before issue 16 (templates included), with this preset's templates and with
         the templates every shipped preset but `paper` had then: scenes recorded that way still resume."""
         before = Templates(views=20, inplane=12, resolution=128, samples=8).model_dump(mode="json")
-        return [self.model_dump(mode="json"), {**self.model_dump(mode="json"), "templates": before}]
+        return [{**self.digest_content(), "templates": templates}
+                for templates in (self.templates.model_dump(mode="json"), before)]
 
 
 def load_preset(name_or_path: str, overrides: dict | None = None) -> Preset:

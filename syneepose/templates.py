@@ -17,6 +17,8 @@ FOV_DEG = 30.0
 FILL = 0.9  # the bounding sphere spans this fraction of the image width
 DEPTH_EDGE_M = 0.005  # roll_template: neighbouring depths further apart than this meet at an edge
 INPLANE_BY = ("rotated", "rendered")  # in-plane rotations: rolled from the view's render (roll_template), or rendered
+# The denoiser's fast prefilter: at 128 px the accurate one cost 0.3 s of a view's 0.39 s (issue 36, docs/syneepose.md)
+DENOISE_PREFILTER = "fast"
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:

@@ -229,3 +229,29 @@ def test_the_template_settings_are_not_render_settings(copy, tmp_path):
     meta["settings"]["preset_sha256"] = "0" * 16
     meta_path.write_text(json.dumps(meta))
     _one_line(_render(copy), "preset_sha256 0000000000000000 ->")
+
+
+def test_the_denoisers_prefilter_is_a_render_setting(copy, tmp_path):
+    """mini renders with the fast prefilter (issue 36); the same preset with Cycles' default one renders other
+    pixels, so a resume with it is refused, while a preset that never names the prefilter keeps the digest
+    it had before the key existed (scenes rendered then still resume)."""
+    import yaml
+
+    from syneepose.jobs import _digest
+    from syneepose.preset import parse_preset
+
+    preset = yaml.safe_load(Path("scenes/mini.yaml").read_text())
+    assert preset["render"]["denoise_prefilter"] == "fast"
+    preset["render"]["denoise_prefilter"] = "accurate"
+    (tmp_path / "mini.yaml").write_text(yaml.safe_dump(preset))
+    _one_line(_render(copy, "--preset", str(tmp_path / "mini.yaml")), "other settings", "preset_sha256")
+
+    other = tmp_path / "accurate"
+    assert _render(other, "--preset", str(tmp_path / "mini.yaml")).returncode == 0
+    rgb = sorted(p.relative_to(copy) for p in copy.rglob("rgb/*.png"))
+    assert rgb and any((copy / p).read_bytes() != (other / p).read_bytes() for p in rgb)
+
+    unnamed = {**preset, "render": {k: v for k, v in preset["render"].items() if k != "denoise_prefilter"}}
+    assert (_digest(parse_preset(unnamed).digest_content()) == _digest(parse_preset(preset).digest_content())
+            != _digest(parse_preset({**preset, "render": {**preset["render"], "denoise_prefilter": "fast"}})
+                       .digest_content()))

@@ -88,6 +88,26 @@ def test_a_set_is_not_resumed_the_other_way(both_sets, tmp_path):
     assert len(read_index(folder)) == 5
 
 
+def test_a_set_denoised_the_older_way_is_used_whole_and_never_resumed(both_sets, tmp_path):
+    """Sets record their denoiser prefilter (`fast` since issue 36); one from before the record (`accurate`)
+    is read as it is when complete, and half of one is refused in one line, nothing added."""
+    _, rotated = both_sets
+    assert {r["denoise_prefilter"] for r in read_index(rotated).values()} == {"fast"}
+    out = tmp_path / "older"
+    folder = set_dir(out, "robotiq_2f85", VIEWS, INPLANE, RES)
+    shutil.copytree(rotated, folder)
+    older = {k: {f: v for f, v in rec.items() if f != "denoise_prefilter"} for k, rec in read_index(folder).items()}
+    (folder / "templates.json").write_text(json.dumps(older))
+    command = [sys.executable, "-m", "syneepose", "templates", "--out", str(out), "--ee", "robotiq_2f85", "--views",
+               str(VIEWS), "--inplane", str(INPLANE), "--resolution", str(RES), "--samples", "16"]
+    assert subprocess.run(command, capture_output=True, text=True).returncode == 0
+    assert read_index(folder) == older
+    (folder / "templates.json").write_text(json.dumps({k: v for k, v in older.items() if int(k) < 5}))
+    proc = subprocess.run(command, capture_output=True, text=True)
+    assert proc.returncode == 2 and "accurate prefilter" in proc.stderr and "Traceback" not in proc.stderr
+    assert len(read_index(folder)) == 5
+
+
 def test_a_users_urdf_gives_the_templates_and_model_of_its_end_effector(both_sets, assets, tmp_path):
     """`templates --urdf --ee-link`: the part of a robot's URDF below a link, rendered as a user's own
     end-effector. On the assembled UR5e + 2F-85 URDF below ee_mount it is the catalogue's 2F-85: the same

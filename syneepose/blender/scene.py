@@ -2,7 +2,8 @@
 
 Two view layers: `main` (everything; RGB, z-depth, object index) and `ee_only` (only the
 end-effector, 1 sample; its object index is the full silhouette that BOP calls `mask`). Depth and
-object index come from the pixel-centre ray, so they agree with each other and with OpenCV.
+object index come from the pixel-centre ray, so they agree with each other and with OpenCV. A scene of
+the end-effector alone (templates) needs no `ee_only` layer: its `main` passes are the same pixels.
 """
 
 from __future__ import annotations
@@ -33,8 +34,10 @@ BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 def reset(width: int, height: int, samples: int, denoise: bool = False, max_bounces: int = 12,
           world_color=(0.05, 0.05, 0.05), world_strength: float = 1.0, transparent: bool = False,
-          device: str = "cpu", threads: int = 0) -> None:
-    """Empty Cycles scene; `transparent` renders the background black (templates); `threads` 0: all cores."""
+          device: str = "cpu", threads: int = 0, prefilter: str = "accurate", ee_layer: bool = True) -> None:
+    """Empty Cycles scene; `transparent` renders the background black (templates); `threads` 0: all cores;
+    `prefilter`: how the denoiser cleans its albedo and normal passes (preset.PREFILTERS); `ee_layer`: the
+    `ee_only` view layer, which a scene of the end-effector alone does without."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -42,6 +45,7 @@ def reset(width: int, height: int, samples: int, denoise: bool = False, max_boun
     scene.cycles.samples = samples
     scene.cycles.use_adaptive_sampling = False
     scene.cycles.use_denoising = denoise
+    scene.cycles.denoising_prefilter = prefilter.upper()
     scene.cycles.max_bounces = max_bounces
     scene.cycles.seed = 0
     scene.render.threads_mode = "FIXED" if threads else "AUTO"
@@ -61,23 +65,27 @@ def reset(width: int, height: int, samples: int, denoise: bool = False, max_boun
         scene.collection.children.link(bpy.data.collections.new(name))
     main = scene.view_layers[0]
     main.name = MAIN
-    ee_only = scene.view_layers.new(EE_ONLY)
-    ee_only.samples = 1
-    # The EE-only layer gives the occlusion-free mask and depth, never pixels: no denoiser and a plain emission
-    # instead of light sampling cost a quarter of a mini frame (benchmarks/render_settings.py), outputs identical
-    ee_only.cycles.use_denoising = False
-    ee_only.material_override = _emission_material()
-    for layer in (main, ee_only):
-        layer.use_pass_z = True
-        layer.use_pass_object_index = True
-    for child in ee_only.layer_collection.children:
-        child.exclude = child.name != "ee"
+    main.use_pass_z = main.use_pass_object_index = True
+    if ee_layer:
+        _add_ee_only_layer(scene)
     world = bpy.data.worlds.new("world")
     scene.world = world
     world.use_nodes = True
     background = world.node_tree.nodes["Background"]
     background.inputs["Color"].default_value = (*world_color, 1.0)
     background.inputs["Strength"].default_value = world_strength
+
+
+def _add_ee_only_layer(scene) -> None:
+    ee_only = scene.view_layers.new(EE_ONLY)
+    ee_only.samples = 1
+    # The EE-only layer gives the occlusion-free mask and depth, never pixels: no denoiser and a plain emission
+    # instead of light sampling cost a quarter of a mini frame (benchmarks/render_settings.py), outputs identical
+    ee_only.cycles.use_denoising = False
+    ee_only.material_override = _emission_material()
+    ee_only.use_pass_z = ee_only.use_pass_object_index = True
+    for child in ee_only.layer_collection.children:
+        child.exclude = child.name != "ee"
 
 
 def _emission_material():
@@ -315,12 +323,12 @@ def _rgba(grey: np.ndarray) -> np.ndarray:
     return out.ravel()
 
 
-RENDER_PASSES = (f"{MAIN}.Combined", f"{MAIN}.Depth", f"{MAIN}.Object Index", f"{EE_ONLY}.Depth",
-                 f"{EE_ONLY}.Object Index")
+LAYER_PASSES = {MAIN: ("Combined", "Depth", "Object Index"), EE_ONLY: ("Depth", "Object Index")}
 
 
 def render(workdir: Path | None = None) -> dict[str, np.ndarray]:
-    """Render the current frame; returns linear RGB and the passes of both layers (H, W)."""
+    """Render the current frame; returns linear RGB and the passes of its layers (H, W): `ee_depth` and
+    `ee_index` only from a scene with the `ee_only` layer."""
     fd, path = tempfile.mkstemp(suffix=".exr", dir=workdir)
     os.close(fd)
     try:
@@ -332,15 +340,15 @@ def render(workdir: Path | None = None) -> dict[str, np.ndarray]:
             passes = {}
     finally:
         os.unlink(path)
-    missing = [k for k in RENDER_PASSES if k not in passes]
+    layers = [layer.name for layer in bpy.context.scene.view_layers if layer.use]
+    missing = [f"{layer}.{name}" for layer in layers for name in LAYER_PASSES[layer] if f"{layer}.{name}" not in passes]
     if missing:
         free_mb = shutil.disk_usage(Path(path).parent).free / 2**20
         raise UserError(f"Blender's render came back without {', '.join(missing)} ({free_mb:.0f} MB free in "
                         f"{Path(path).parent}: a full disk cuts its EXR short); free space and run again")
-    return {
-        "rgb_linear": passes[f"{MAIN}.Combined"][..., :3],
-        "depth": passes[f"{MAIN}.Depth"],
-        "index": np.rint(passes[f"{MAIN}.Object Index"]).astype(np.int32),
-        "ee_depth": passes[f"{EE_ONLY}.Depth"],
-        "ee_index": np.rint(passes[f"{EE_ONLY}.Object Index"]).astype(np.int32),
-    }
+    out = {"rgb_linear": passes[f"{MAIN}.Combined"][..., :3], "depth": passes[f"{MAIN}.Depth"],
+           "index": np.rint(passes[f"{MAIN}.Object Index"]).astype(np.int32)}
+    if EE_ONLY in layers:
+        out.update(ee_depth=passes[f"{EE_ONLY}.Depth"],
+                   ee_index=np.rint(passes[f"{EE_ONLY}.Object Index"]).astype(np.int32))
+    return out

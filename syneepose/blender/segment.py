@@ -34,7 +34,8 @@ def build_scene(spec: SegmentSpec, render: RenderSettings, robot: Robot) -> bsce
     """A fresh Cycles scene of the segment (camera, lights, backdrop, distractors, robot), the robot not yet
     posed; what the renderer and the render benchmarks start from."""
     bscene.reset(render.width, render.height, render.samples, render.denoise, render.max_bounces, spec.world_color,
-                 spec.world_strength, device=render.device, threads=render.threads)
+                 spec.world_strength, device=render.device, threads=render.threads,
+                 prefilter=render.denoise_prefilter)
     bscene.set_camera(spec.K, render.width, render.height, spec.T_base_cam)
     bscene.add_lights(spec.lights)
     bscene.add_planes(spec.planes)

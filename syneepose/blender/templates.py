@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from kernel.template_set import Template, TemplateSetWriter
-from syneepose.templates import intrinsics, poses, roll_template
+from syneepose.templates import DENOISE_PREFILTER, intrinsics, poses, roll_template
 from syneepose.blender import scene as bscene
 from syneepose.colour import linear_to_srgb8
 from syneepose.robots.ee_models import rigid_mesh
@@ -23,7 +23,7 @@ def render_templates(model: RobotModel, urdf_dir: Path, canonical: dict[str, flo
     `urdf_dir`, posed at `canonical`); returns how many were written. `inplane="rotated"` renders each view
     once and rolls the images for its in-plane rotations (roll_template); "rendered" renders every template,
     the reference the rotation is tested against."""
-    writer = TemplateSetWriter(folder, obj_id, samples, inplane)
+    writer = TemplateSetWriter(folder, obj_id, samples, inplane, DENOISE_PREFILTER)
     mesh = rigid_mesh(model, urdf_dir, canonical)
     centre = mesh.bounds.mean(0)
     radius = float(np.linalg.norm(mesh.vertices - centre, axis=1).max())
@@ -33,7 +33,8 @@ def render_templates(model: RobotModel, urdf_dir: Path, canonical: dict[str, flo
     if not todo:
         return 0
     bscene.reset(resolution, resolution, samples, denoise=samples >= 4, world_color=(1.0, 1.0, 1.0),
-                 world_strength=1.0, transparent=True, device=device, threads=threads)
+                 world_strength=1.0, transparent=True, device=device, threads=threads, prefilter=DENOISE_PREFILTER,
+                 ee_layer=False)
     bscene.set_camera(K, resolution, resolution, np.eye(4))
     objects = bscene.RobotObjects(model, Path(urdf_dir), {lk.name for lk in model.links})
     objects.pose(Kinematics(model).link_poses(canonical))
@@ -55,8 +56,9 @@ def render_templates(model: RobotModel, urdf_dir: Path, canonical: dict[str, flo
 
 
 def _render(T_cam_model: np.ndarray, folder: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(sRGB uint8, depth in metres with 0 off the object, mask) seen from one camera pose."""
+    """(sRGB uint8, depth in metres with 0 off the object, mask) seen from one camera pose. The end-effector
+    is all the scene holds, so the main layer's index and depth are its full mask and depth."""
     bscene.move_camera(np.linalg.inv(T_cam_model))
     out = bscene.render(Path(folder))
-    mask = out["ee_index"] == bscene.PASS_EE
-    return linear_to_srgb8(out["rgb_linear"]), np.where(mask, out["ee_depth"], 0.0), mask
+    mask = out["index"] == bscene.PASS_EE
+    return linear_to_srgb8(out["rgb_linear"]), np.where(mask, out["depth"], 0.0), mask
