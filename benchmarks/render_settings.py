@@ -2,8 +2,8 @@
 reference (no denoiser, 12 bounces) for today's settings and alternatives, on the same planned frames.
 
 Each variant changes one thing, or a few, against today's (scenes/mini.yaml: 8 spp, OIDN denoiser with the
-fast prefilter, 8 bounces, light tree, no adaptive sampling; the EE-only layer undenoised and emission-shaded); times are the render call per
-frame (Cycles and its EXR; the scene build excluded), the variants interleaved frame by frame so a noisy
+fast prefilter, 8 bounces, light tree, no adaptive sampling; the EE-only layer undenoised and emission-shaded);
+times are the render call per frame (Cycles and its EXR; the scene build excluded), the variants interleaved frame by frame so a noisy
 machine slows them alike. Prints figures, asserts nothing:
 `.venv/bin/python benchmarks/render_settings.py [--configs A+B,...] [--frames N] [--variants "A;B"]`.
 """
@@ -80,11 +80,11 @@ def main() -> None:
     parser.add_argument("--variants", default="",
                         help="names separated by ; to run beside today's (default: all)")
     args = parser.parse_args()
-    chosen = [name for name in VARIANTS if name in args.variants.split(";")]
-    variants = {name: VARIANTS[name] for name in [next(iter(VARIANTS)), *chosen]} if args.variants else VARIANTS
-    unknown = sorted(set(args.variants.split(";")) - set(VARIANTS) - {""})
-    if unknown:
-        parser.error(f"unknown variant(s) {unknown}; choose from {list(VARIANTS)}")
+    names = [name for name in args.variants.split(";") if name]
+    if set(names) - set(VARIANTS):
+        parser.error(f"unknown variant(s) {sorted(set(names) - set(VARIANTS))}; choose from {list(VARIANTS)}")
+    today = next(iter(VARIANTS))
+    variants = {name: VARIANTS[name] for name in [today, *names]} if names else VARIANTS
     n = load_preset("mini").frames
     frames = sorted({round(k * (n - 1) / max(args.frames - 1, 1)) for k in range(args.frames)})
     results = {name: ([], []) for name in variants}
@@ -96,7 +96,7 @@ def main() -> None:
                 image, seconds = render_frame(robot, spec, preset, change, frame)
                 results[name][0].append(psnr(image, reference))
                 results[name][1].append(seconds)
-    base = np.mean(results[next(iter(variants))][1])
+    base = np.mean(results[today][1])
     print(f"mini, 320x240, {len(frames)} frames x {len(args.configs.split(','))} configurations; "
           "PSNR against 256 spp / no denoiser / 12 bounces")
     for name, (psnrs, seconds) in results.items():
