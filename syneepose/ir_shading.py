@@ -24,9 +24,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
-from kernel.camera import backproject, point_map, project
+from kernel.camera import point_map, project
 from kernel.transforms import inv_T
 from syneepose.colour import LUMINANCE, linear_to_srgb
 
@@ -58,28 +59,28 @@ class DotPattern:
         self.table = np.zeros((self.size + 1, self.size + 1))
         self.table[1:, 1:] = (pattern.astype(np.float64) / 255.0).cumsum(0).cumsum(1)
 
-    def coords(self, points_proj: np.ndarray) -> np.ndarray:
-        """(..., 2) pattern coordinates (column, row; pixel edges at integers) of points in the projector
-        frame, as the path-traced spot light's texture lookup has them (syneepose/blender/stereo.py)."""
-        z = np.maximum(points_proj[..., 2:3], 1e-9)
-        return self.size * (0.5 + self.scale * points_proj[..., :2] / z)
 
-    def box_mean(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """Mean pattern value over axis-aligned boxes (..., 2) in pattern coordinates: the summed-area
-        table read bilinearly, which is exact for a piecewise-constant image."""
-        lo, hi = np.clip(lo, 0, self.size), np.clip(hi, 0, self.size)
-        area = np.prod(hi - lo, -1)
-        total = (self._integral(hi[..., 0], hi[..., 1]) - self._integral(lo[..., 0], hi[..., 1])
-                 - self._integral(hi[..., 0], lo[..., 1]) + self._integral(lo[..., 0], lo[..., 1]))
-        return np.where(area > 1e-9, total / np.maximum(area, 1e-9), 0.0)
+@numba.njit(cache=True, nogil=True)
+def _integral(table: np.ndarray, size: int, x: float, y: float) -> float:
+    """The summed-area table at (x, y), bilinear between its entries."""
+    x0 = min(int(np.floor(x)), size - 1)
+    y0 = min(int(np.floor(y)), size - 1)
+    fx, fy = x - x0, y - y0
+    return ((1 - fx) * (1 - fy) * table[y0, x0] + fx * (1 - fy) * table[y0, x0 + 1]
+            + (1 - fx) * fy * table[y0 + 1, x0] + fx * fy * table[y0 + 1, x0 + 1])
 
-    def _integral(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        x0 = np.minimum(np.floor(x).astype(int), self.size - 1)
-        y0 = np.minimum(np.floor(y).astype(int), self.size - 1)
-        fx, fy = x - x0, y - y0
-        t = self.table
-        return ((1 - fx) * (1 - fy) * t[y0, x0] + fx * (1 - fy) * t[y0, x0 + 1] + (1 - fx) * fy * t[y0 + 1, x0]
-                + fx * fy * t[y0 + 1, x0 + 1])
+
+@numba.njit(cache=True, nogil=True)
+def box_mean(table: np.ndarray, size: int, lo_x: float, lo_y: float, hi_x: float, hi_y: float) -> float:
+    """Mean pattern value over an axis-aligned box in pattern coordinates (DotPattern's `table` and `size`):
+    the summed-area table read bilinearly, which is exact for a piecewise-constant image."""
+    lo_x, lo_y = min(max(lo_x, 0.0), size), min(max(lo_y, 0.0), size)
+    hi_x, hi_y = min(max(hi_x, 0.0), size), min(max(hi_y, 0.0), size)
+    area = (hi_x - lo_x) * (hi_y - lo_y)
+    if area <= 1e-9:
+        return 0.0
+    return (_integral(table, size, hi_x, hi_y) - _integral(table, size, lo_x, hi_y)
+            - _integral(table, size, hi_x, lo_y) + _integral(table, size, lo_x, lo_y)) / area
 
 
 @dataclass
@@ -126,40 +127,50 @@ class Lighting:
                    np.reshape(suns, (-1, 3)), np.array(sun_irradiance),
                    share * world_strength * float(np.dot(world_color, LUMINANCE)))
 
-    def irradiance(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-        out = np.zeros(points.shape[:-1])
-        for position, intensity, facing in zip(self.positions, self.intensities, self.facings):
-            to_light = position - points
-            r2 = np.maximum(np.sum(to_light**2, -1), 1e-6)
-            direction = to_light / np.sqrt(r2)[..., None]
-            emitted = intensity * (np.maximum(-direction @ facing, 0.0) if facing.any() else 1.0)
-            out += emitted * np.maximum(np.sum(normals * direction, -1), 0.0) / r2
-        for direction, irradiance in zip(self.suns, self.sun_irradiance):
-            out += irradiance * np.maximum(normals @ direction, 0.0)
-        return out
-
 
 def dot_share(g: GBuffer, projector: Projector, points_cam: np.ndarray) -> np.ndarray:
     """The mean of the pattern over each pixel's footprint: the pixel's four corner rays met with the tangent
     plane of its centre's surface (`points_cam`: the imager's point map), taken to the pattern, and the
-    pattern averaged over their bounding box."""
-    h, w = g.depth.shape
+    pattern averaged over their bounding box (compiled: one pass over the pixels, about 30x numpy's)."""
     T_proj_cam = inv_T(projector.T_base_proj) @ g.T_base_cam
     normals_cam = g.normal @ g.T_base_cam[:3, :3]
-    offset = np.sum(normals_cam * points_cam, -1)
-    pixels = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1)
-    corners = []
-    for du, dv in ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)):
-        ray = backproject(pixels + (du, dv), np.ones((h, w)), g.K)
-        facing = np.sum(normals_cam * ray, -1)
-        t = np.where(np.abs(facing) > 1e-6, offset / np.where(np.abs(facing) > 1e-6, facing, 1.0), g.depth)
-        t = np.clip(t, 0.5 * g.depth, 2.0 * g.depth)  # grazing: the footprint stays near the pixel's own depth
-        corner = (ray * t[..., None]) @ T_proj_cam[:3, :3].T + T_proj_cam[:3, 3]
-        corners.append(projector.pattern.coords(corner))
-    corners = np.stack(corners)
-    lo, hi = corners.min(0), corners.max(0)
-    middle, half = (lo + hi) / 2, np.minimum((hi - lo) / 2, MAX_FOOTPRINT / 2)
-    return projector.pattern.box_mean(middle - half, middle + half)
+    out = np.empty(g.depth.shape)
+    pattern = projector.pattern
+    _footprint_means(*(np.ascontiguousarray(a, dtype=np.float64) for a in (g.depth, normals_cam, points_cam, g.K,
+                                                                            T_proj_cam)),
+                     pattern.table, pattern.size, pattern.scale, MAX_FOOTPRINT, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _footprint_means(depth, normals, points, K, T, table, size, scale, max_footprint, out):
+    """dot_share per pixel; a point in the projector frame lands at pattern column, row = size (0.5 + scale
+    (x, y) / z) with pixel edges at integers, as the path-traced spot light's texture lookup has it
+    (syneepose/blender/stereo.py)."""
+    for v in range(depth.shape[0]):
+        for u in range(depth.shape[1]):
+            nx, ny, nz = normals[v, u, 0], normals[v, u, 1], normals[v, u, 2]
+            offset = nx * points[v, u, 0] + ny * points[v, u, 1] + nz * points[v, u, 2]
+            d = depth[v, u]
+            lo_x = lo_y = np.inf
+            hi_x = hi_y = -np.inf
+            for corner in range(4):
+                rx = (u + (corner % 2 - 0.5) - K[0, 2]) / K[0, 0]
+                ry = (v + (corner // 2 - 0.5) - K[1, 2]) / K[1, 1]
+                facing = nx * rx + ny * ry + nz
+                t = offset / facing if abs(facing) > 1e-6 else d
+                t = min(max(t, 0.5 * d), 2.0 * d)  # grazing: the footprint stays near the pixel's own depth
+                x, y, z = rx * t, ry * t, t
+                px = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
+                py = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
+                pz = max(T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3], 1e-9)
+                cu, cv = size * (0.5 + scale * px / pz), size * (0.5 + scale * py / pz)
+                lo_x, hi_x = min(lo_x, cu), max(hi_x, cu)
+                lo_y, hi_y = min(lo_y, cv), max(hi_y, cv)
+            mid_x, mid_y = (lo_x + hi_x) / 2, (lo_y + hi_y) / 2
+            half_x = min((hi_x - lo_x) / 2, max_footprint / 2)
+            half_y = min((hi_y - lo_y) / 2, max_footprint / 2)
+            out[v, u] = box_mean(table, size, mid_x - half_x, mid_y - half_y, mid_x + half_x, mid_y + half_y)
 
 
 def projector_sees(projector: Projector, points: np.ndarray) -> np.ndarray:
@@ -179,41 +190,85 @@ def projector_sees(projector: Projector, points: np.ndarray) -> np.ndarray:
     return (z > 0) & (~inside | (z <= nearest * (1 + SHADOW_TOLERANCE[1]) + SHADOW_TOLERANCE[0]))
 
 
-def ggx_specular(normal: np.ndarray, to_light: np.ndarray, to_eye: np.ndarray, roughness: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def ggx_specular(nx, ny, nz, lx, ly, lz, ex, ey, ez, roughness):
     """The GGX microfacet BRDF without its Fresnel factor, D G / (4 (n.l) (n.v)), with Smith's masking
-    (Walter et al., "Microfacet models for refraction through rough surfaces", EGSR 2007); unit vectors."""
-    alpha2 = np.maximum(roughness, 0.02) ** 4
-    half = to_light + to_eye
-    half /= np.maximum(np.linalg.norm(half, axis=-1, keepdims=True), 1e-9)
-    nh = np.clip(np.sum(normal * half, -1), 0.0, 1.0)
-    nl = np.clip(np.sum(normal * to_light, -1), 1e-3, 1.0)
-    nv = np.clip(np.sum(normal * to_eye, -1), 1e-3, 1.0)
+    (Walter et al., "Microfacet models for refraction through rough surfaces", EGSR 2007); unit normal n,
+    towards-light l and towards-eye e."""
+    alpha2 = max(roughness, 0.02) ** 4
+    hx, hy, hz = lx + ex, ly + ey, lz + ez
+    length = max(np.sqrt(hx * hx + hy * hy + hz * hz), 1e-9)
+    hx, hy, hz = hx / length, hy / length, hz / length
+    nh = min(max(nx * hx + ny * hy + nz * hz, 0.0), 1.0)
+    nl = min(max(nx * lx + ny * ly + nz * lz, 1e-3), 1.0)
+    nv = min(max(nx * ex + ny * ey + nz * ez, 1e-3), 1.0)
     d = alpha2 / (np.pi * (nh**2 * (alpha2 - 1) + 1) ** 2)
+    g_l = 2 * nl / (nl + np.sqrt(alpha2 + (1 - alpha2) * nl**2))
+    g_v = 2 * nv / (nv + np.sqrt(alpha2 + (1 - alpha2) * nv**2))
+    return d * g_l * g_v / (4 * nl * nv)
 
-    def g1(x):
-        return 2 * x / (x + np.sqrt(alpha2 + (1 - alpha2) * x**2))
 
-    return d * g1(nl) * g1(nv) / (4 * nl * nv)
+@numba.njit(cache=True, nogil=True)
+def _irradiance(px, py, pz, nx, ny, nz, positions, intensities, facings, suns, sun_irradiance):
+    """Lighting's point and area lights (inverse square, an area light's cosine about its facing) and suns at
+    one surface point; unshadowed."""
+    out = 0.0
+    for k in range(positions.shape[0]):
+        dx, dy, dz = positions[k, 0] - px, positions[k, 1] - py, positions[k, 2] - pz
+        r2 = max(dx * dx + dy * dy + dz * dz, 1e-6)
+        r = np.sqrt(r2)
+        dx, dy, dz = dx / r, dy / r, dz / r
+        emitted = intensities[k]
+        if facings[k, 0] != 0.0 or facings[k, 1] != 0.0 or facings[k, 2] != 0.0:
+            emitted *= max(-dx * facings[k, 0] - dy * facings[k, 1] - dz * facings[k, 2], 0.0)
+        out += emitted * max(nx * dx + ny * dy + nz * dz, 0.0) / r2
+    for k in range(suns.shape[0]):
+        out += sun_irradiance[k] * max(nx * suns[k, 0] + ny * suns[k, 1] + nz * suns[k, 2], 0.0)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _shade(depth, points, normals, albedo, gloss, roughness, share, sees, projector, intensity, eye,
+           positions, intensities, facings, suns, sun_irradiance, world, out):
+    """radiance per pixel: the dots by the Lambertian and GGX lobes, the ambient lights, the world."""
+    for v in range(depth.shape[0]):
+        for u in range(depth.shape[1]):
+            if depth[v, u] <= 0:
+                out[v, u] = world
+                continue
+            px, py, pz = points[v, u, 0], points[v, u, 1], points[v, u, 2]
+            nx, ny, nz = normals[v, u, 0], normals[v, u, 1], normals[v, u, 2]
+            lx, ly, lz = projector[0] - px, projector[1] - py, projector[2] - pz
+            r2 = max(lx * lx + ly * ly + lz * lz, 1e-6)
+            r = np.sqrt(r2)
+            lx, ly, lz = lx / r, ly / r, lz / r
+            dots = 0.0
+            if sees[v, u]:
+                dots = intensity * share[v, u] * max(nx * lx + ny * ly + nz * lz, 0.0) / r2
+            ex, ey, ez = eye[0] - px, eye[1] - py, eye[2] - pz
+            length = max(np.sqrt(ex * ex + ey * ey + ez * ez), 1e-9)
+            ex, ey, ez = ex / length, ey / length, ez / length
+            specular = gloss[v, u] * ggx_specular(nx, ny, nz, lx, ly, lz, ex, ey, ez, roughness[v, u])
+            ambient = _irradiance(px, py, pz, nx, ny, nz, positions, intensities, facings, suns, sun_irradiance)
+            out[v, u] = albedo[v, u] / np.pi * (dots + ambient) + specular * dots + albedo[v, u] * world
 
 
 def radiance(g: GBuffer, projector: Projector, lighting: Lighting) -> np.ndarray:
     """Radiance (W / (m^2 sr), luminance) each pixel of the imager receives; where the ray hits nothing,
     the world's."""
-    hit = g.depth > 0
     points_cam = point_map(g.depth, g.K)
     points = points_cam @ g.T_base_cam[:3, :3].T + g.T_base_cam[:3, 3]
-    to_projector = projector.T_base_proj[:3, 3] - points
-    r2 = np.maximum(np.sum(to_projector**2, -1), 1e-6)
-    to_projector /= np.sqrt(r2)[..., None]
-    cosine = np.maximum(np.sum(g.normal * to_projector, -1), 0.0)
-    dots = projector.intensity * dot_share(g, projector, points_cam) * cosine / r2
-    dots = np.where(projector_sees(projector, points), dots, 0.0)
-    to_eye = g.T_base_cam[:3, 3] - points
-    to_eye /= np.maximum(np.linalg.norm(to_eye, axis=-1, keepdims=True), 1e-9)
-    specular = g.gloss * ggx_specular(g.normal, to_projector, to_eye, g.roughness)
-    lit = (g.albedo / np.pi * (dots + lighting.irradiance(points, g.normal)) + specular * dots
-           + g.albedo * lighting.world_radiance)
-    return np.where(hit, lit, lighting.world_radiance)
+    share = dot_share(g, projector, points_cam)
+    sees = projector_sees(projector, points)
+    out = np.empty(g.depth.shape)
+    arrays = (g.depth, points, g.normal, g.albedo, g.gloss, g.roughness, share)
+    _shade(*(np.ascontiguousarray(a, dtype=np.float64) for a in arrays), np.ascontiguousarray(sees),
+           projector.T_base_proj[:3, 3].astype(np.float64), float(projector.intensity),
+           g.T_base_cam[:3, 3].astype(np.float64),
+           *(np.ascontiguousarray(a, dtype=np.float64) for a in (
+               lighting.positions, lighting.intensities, lighting.facings, lighting.suns, lighting.sun_irradiance)),
+           float(lighting.world_radiance), out)
+    return out
 
 
 def expose(left: np.ndarray, right: np.ndarray, psf_sigma: float, white_level: float, full_well: float,

@@ -6,7 +6,8 @@ import numpy as np
 from kernel.camera import point_map
 from kernel.transforms import make_T
 from syneepose.colour import linear_to_srgb, srgb_to_linear
-from syneepose.ir_shading import DotPattern, GBuffer, Lighting, Projector, dot_share, expose, projector_sees, radiance
+from syneepose.ir_shading import (DotPattern, GBuffer, Lighting, Projector, box_mean, dot_share, expose,
+                                  projector_sees, radiance)
 from syneepose.scene.spec import Light
 
 
@@ -21,9 +22,9 @@ def test_box_mean_is_the_exact_mean_of_the_pattern_under_a_fractional_box():
     # a box from (10.25, 20.5) to (13.75, 22.5): whole pixels plus fractions of the border ones, by brute force
     fine = np.kron(pattern.astype(float) / 255, np.ones((4, 4)))  # quarter-pixel cells
     expected = fine[82:90, 41:55].mean()
-    got = dots.box_mean(np.array([10.25, 20.5]), np.array([13.75, 22.5]))
+    got = box_mean(dots.table, dots.size, 10.25, 20.5, 13.75, 22.5)
     assert abs(got - expected) < 1e-12
-    assert dots.box_mean(np.array([5.0, 5.0]), np.array([5.0, 7.0])) == 0.0  # an empty box
+    assert box_mean(dots.table, dots.size, 5.0, 5.0, 5.0, 7.0) == 0.0  # an empty box
 
 
 def _wall(distance, size=(40, 30), f=30.0, albedo=0.5, gloss=0.0):

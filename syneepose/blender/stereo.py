@@ -164,7 +164,10 @@ class IrRig:
                        passes[f"{bscene.MAIN}.{ROUGHNESS_AOV}"], K, T_base_cam)
 
     def _gbuffer_mode(self) -> dict:
-        """One pixel-centre ray per pixel, no light: what the G-buffer passes need and nothing else."""
+        """One pixel-centre ray per pixel, no light: what the G-buffer passes need and nothing else. The
+        three calls keep Cycles' session between them (persistent data: they differ only in the camera;
+        their passes are byte-identical either way) and write their temporary EXR uncompressed, together
+        about 0.3 s of a frame's pair (docs/syneepose.md, "Sensor-like depth")."""
         scene = bpy.context.scene
         main = scene.view_layers[bscene.MAIN]
         background = scene.world.node_tree.nodes["Background"].inputs["Strength"]
@@ -172,7 +175,11 @@ class IrRig:
         saved = self._common_mode()
         saved.update({"bounces": scene.cycles.max_bounces, "filter": scene.cycles.filter_width,
                       "world": background.default_value, "hidden": [(ob, ob.hide_render) for ob in lights],
-                      "passes": (main.use_pass_normal, main.use_pass_diffuse_color, main.use_pass_glossy_color)})
+                      "passes": (main.use_pass_normal, main.use_pass_diffuse_color, main.use_pass_glossy_color),
+                      "persistent": scene.render.use_persistent_data,
+                      "codec": scene.render.image_settings.exr_codec})
+        scene.render.use_persistent_data = True
+        scene.render.image_settings.exr_codec = "NONE"
         scene.cycles.samples = 1
         scene.cycles.max_bounces = 0
         scene.cycles.filter_width = 0.01
@@ -243,5 +250,7 @@ class IrRig:
             scene.cycles.max_bounces = saved["bounces"]
             scene.cycles.filter_width = saved["filter"]
             main.use_pass_normal, main.use_pass_diffuse_color, main.use_pass_glossy_color = saved["passes"]
+            scene.render.use_persistent_data = saved["persistent"]
+            scene.render.image_settings.exr_codec = saved["codec"]
         if self.projector is not None:
             self.projector.hide_render = True
