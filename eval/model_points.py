@@ -81,7 +81,10 @@ class EvalModel:
 def _cells(vertices: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
     """Cell index of every vertex on a cubic grid of `size` metres, and the vertex count of each cell."""
     keys = np.floor((vertices - vertices.min(axis=0)) / size).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    extent = keys.max(axis=0) + 1
+    # one integer per cell, ordered as its (x, y, z) rows: np.unique's axis=0 order at a tenth of the cost
+    flat = (keys[:, 0] * extent[1] + keys[:, 1]) * extent[2] + keys[:, 2]
+    _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
     return inverse.ravel(), counts
 
 
