@@ -131,7 +131,8 @@ class Lighting:
 def dot_share(g: GBuffer, projector: Projector, points_cam: np.ndarray) -> np.ndarray:
     """The mean of the pattern over each pixel's footprint: the pixel's four corner rays met with the tangent
     plane of its centre's surface (`points_cam`: the imager's point map), taken to the pattern, and the
-    pattern averaged over their bounding box (compiled: one pass over the pixels, about 30x numpy's)."""
+    pattern averaged over their bounding box (compiled, one pass over the pixels: 13x faster than numpy's
+    arrays of the four corners)."""
     T_proj_cam = inv_T(projector.T_base_proj) @ g.T_base_cam
     normals_cam = g.normal @ g.T_base_cam[:3, :3]
     out = np.empty(g.depth.shape)
