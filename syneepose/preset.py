@@ -21,11 +21,12 @@ MAX_SIDE_PX = 8192  # a render side beyond this is a typo, not a data set (10000
 
 
 PREFILTERS = ("accurate", "fast", "none")  # Cycles' denoising_prefilter: how the denoiser cleans its albedo and normal
+DEFAULT_PREFILTER = "accurate"  # Cycles' own default: every data set before issue 36 was denoised with it
 
 
 class Render(Section):
     denoise: bool = False
-    denoise_prefilter: Literal[PREFILTERS] = "accurate"
+    denoise_prefilter: Literal[PREFILTERS] = DEFAULT_PREFILTER
     max_bounces: int = Field(12, ge=0, le=1024)
 
 
@@ -117,7 +118,7 @@ class Preset(Section):
 
     def render_settings(self, **run) -> RenderSettings:
         """The preset's render choices with the run's (`run`: RenderSettings' device, depth, threads, ...)."""
-        from syneepose.scene.spec import RenderSettings  # the spec's marker module reads this one's sections
+        from syneepose.scene.spec import RenderSettings  # spec imports this module (DEFAULT_PREFILTER)
 
         return RenderSettings(*self.resolution, self.samples, self.render.denoise, self.render.max_bounces,
                               denoise_prefilter=self.render.denoise_prefilter, **run)
@@ -129,7 +130,7 @@ class Preset(Section):
         when it is not Cycles' default, the one every preset rendered with before it could be chosen (issue 36),
         so those data sets keep their digest."""
         content = self.model_dump(mode="json", exclude={"templates"})
-        if content["render"]["denoise_prefilter"] == "accurate":
+        if content["render"]["denoise_prefilter"] == DEFAULT_PREFILTER:
             del content["render"]["denoise_prefilter"]
         return content
 

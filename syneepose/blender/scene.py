@@ -21,6 +21,7 @@ from kernel.errors import UserError
 from syneepose.blender.exr import read_passes
 from syneepose.colour import srgb_to_linear
 from syneepose.devices import GPU_BACKENDS, gpu_backend
+from syneepose.preset import DEFAULT_PREFILTER
 from syneepose.robots.model import RobotModel
 from syneepose.robots.robot import arm_links
 from syneepose.scene.marker import MarkerBoard
@@ -34,7 +35,7 @@ BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 def reset(width: int, height: int, samples: int, denoise: bool = False, max_bounces: int = 12,
           world_color=(0.05, 0.05, 0.05), world_strength: float = 1.0, transparent: bool = False,
-          device: str = "cpu", threads: int = 0, prefilter: str = "accurate", ee_layer: bool = True) -> None:
+          device: str = "cpu", threads: int = 0, prefilter: str = DEFAULT_PREFILTER, ee_layer: bool = True) -> None:
     """Empty Cycles scene; `transparent` renders the background black (templates); `threads` 0: all cores;
     `prefilter`: how the denoiser cleans its albedo and normal passes (preset.PREFILTERS); `ee_layer`: the
     `ee_only` view layer, which a scene of the end-effector alone does without."""

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from syneepose.preset import DEFAULT_PREFILTER
 from syneepose.scene.marker import MarkerBoard
 
 
@@ -87,4 +88,4 @@ class RenderSettings:
     sensor: str = "d435"  # the stereo sensor's profile: a name in scenes/sensors/ or a YAML path
     threads: int = 0  # Cycles CPU threads; 0: every core of the machine the job runs on
     sensor_render: str | None = None  # one of IR_RENDERS; None: the sensor profile's choice
-    denoise_prefilter: str = "accurate"  # preset.PREFILTERS: how the denoiser cleans its albedo and normal passes
+    denoise_prefilter: str = DEFAULT_PREFILTER  # preset.PREFILTERS: how the denoiser cleans its albedo and normal passes
