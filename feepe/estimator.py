@@ -22,6 +22,7 @@ from feepe.centres import CentreTrack, observed_centre
 from feepe.icp import (PlaneTerm, SurfaceModel, associate, depth_agreement, depth_distances, observed_cloud,
                        robust_scale, sensor_plane_term)
 from feepe.memory import MemoryEntry, MemoryPool
+from feepe.motion import CLIP_FRAMES, MotionClip, MotionFit, motion_starts
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
 from feepe.registration import DepthFit, depth_fit, outline_contrast, register
@@ -49,6 +50,13 @@ ACCEPT_AGREE = 0.5  # no mask given: a first calibration needs this share of the
 ACCEPT_UNHIDDEN = 0.5  # nothing to hide at least this share of them
 ACCEPT_SEEN_THROUGH = 0.15  # and no more than this share seen through
 ACCEPT_CONTRAST = 0.8  # and the image's colour to change across this share of its outline (registration.py)
+MOTION_MIN_FRAMES = 8  # RGB only, no mask: the robot is first searched for by its motion once this many frames are
+# seen (feepe/motion.py; frames 0 and 1 of a mini segment differ on 2 % of the pixels, frames 0 and 7 on a quarter)
+MOTION_EVERY = 4  # and again every this many frames until a calibration is accepted
+MOTION_KEPT = 0.95  # RGB only: a first calibration, refined, must keep this share of the best motion score the
+# search found on the frames so far (motion.py): the outline refinement must not have taken it elsewhere. The
+# scores themselves tell little alone: shadows cost the true calibration of mini scene 4 half of its score
+RGB_START_ROUNDS = 10  # RGB only: a first calibration is refined at its frame up to this many times more (_settled)
 START_ROUNDS = 2  # a first estimate that does not explain its frame yet is refined again at its own segmentation
 # this many times: a hypothesis a few centimetres off comes in within one frame, not over several
 OWN_MASKS_MIN_SIGMA_PX = 2.0  # no mask given: the outline's scale beside depth at least this. Our own masks err by a
@@ -257,6 +265,9 @@ class Estimator:
         self._band_px = BAND_START_PX
         self._depth_sigma = MIN_DEPTH_SIGMA_M  # no mask given: the segmentation's depth scale, measured per frame
         self._own_masks = False  # whether the refinement fits the estimator's own masks (no mask, or masks as a prior)
+        self._clip = MotionClip()  # no mask and no depth: the frames so far, coarse, for the motion search
+        self._waiting: list[tuple] = []  # and those before any hypothesis (the latest CLIP_FRAMES), kept to join the
+        # memory once one is accepted
 
     def step(self, rgb: np.ndarray, depth: np.ndarray | None, mask: np.ndarray | None, K: np.ndarray,
              T_base_ee: np.ndarray, robot: RobotView | None = None) -> FrameResult:
@@ -309,9 +320,10 @@ class Estimator:
     def _step_unmasked(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_base_ee: np.ndarray,
                        robot: RobotView | None, t_start: float, ee_mask: np.ndarray | None = None) -> FrameResult:
         """No mask: the robot is found in the first frames' depth (several hypotheses, judged as frames
-        arrive), each frame is segmented at the calibration so far, the template path crops the predicted
-        end-effector, and the robot's outline is fitted to the estimator's own segmentation. A frame before
-        any hypothesis explains its depth well is a no-estimate."""
+        arrive) or, with no depth, by its motion over the first frames (feepe/motion.py), each frame is
+        segmented at the calibration so far, the template path crops the predicted end-effector, and the
+        robot's outline is fitted to the estimator's own segmentation. A frame before any hypothesis explains
+        its depth (or the motion and the frame's colours) well is a no-estimate."""
         if self._robot_samples is None:
             raise UserError("with no mask the estimator finds the robot itself: reset(arm=[SilhouetteModel(...), ...]) "
                             "with the arm's link meshes, on an Estimator with silhouette='robot'")
@@ -321,14 +333,21 @@ class Estimator:
         T_base_parts = np.concatenate([T_base_ee[None], robot.T_base_links])
         timings: dict = {}
         surface = None  # the robot's surface samples placed by this frame's joint states, built once when needed
+        has_depth = bool(np.any(depth > 0))
         with _BLAS.limit(limits=1, user_api="blas"):
             if self.T_cam_base is None:
                 t0 = time.perf_counter()
-                surface = SurfaceModel(*self._robot_samples.placed(T_base_parts))
-                self._judge_hypotheses(surface, T_base_parts, rgb, depth, K)
+                if has_depth:
+                    surface = SurfaceModel(*self._robot_samples.placed(T_base_parts))
+                    self._judge_hypotheses(surface, T_base_parts, rgb, depth, K)
+                else:
+                    self._judge_motion(rgb, K, T_base_parts)
                 timings["registration"] = 1e3 * (time.perf_counter() - t0)
             T = self.T_cam_base if self.T_cam_base is not None else (self._hypotheses[0][0] if self._hypotheses else None)
             if T is None:
+                if not has_depth:
+                    self._waiting.append((self.frame, rgb, K, T_base_ee, T_base_parts))
+                    del self._waiting[:-CLIP_FRAMES]
                 self.frame += 1
                 timings["total"] = 1e3 * (time.perf_counter() - t_start)
                 return FrameResult(None, None, 0.0, 0, 0, timings)
@@ -355,14 +374,15 @@ class Estimator:
             T_new, score, n_keys = self._estimate(found, T_base_ee, timings, prior=T)
             timings["optimisation"] = 1e3 * (time.perf_counter() - t0) - timings.get("refinement", 0.0)
             seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
-            accepted = self.T_cam_base is not None or _explains_frame(self.parts, T_new, T_base_parts, rgb, depth, K,
-                                                                      seen.view.inside > 0)
+            accepted = self.T_cam_base is not None or self._explains(T_new, T_base_parts, rgb, depth, K, seen)
             for _ in range(START_ROUNDS):
                 if accepted:
                     break
                 T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
                 seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
-                accepted = _explains_frame(self.parts, T_new, T_base_parts, rgb, depth, K, seen.view.inside > 0)
+                accepted = self._explains(T_new, T_base_parts, rgb, depth, K, seen)
+            if accepted and self.T_cam_base is None and self._waiting:
+                T_new, seen = self._settled(T_new, T_base_ee, rgb, depth, K, found, timings)
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found), need_candidates=False)
         self.frame += 1
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
@@ -409,6 +429,59 @@ class Estimator:
             h[1] += fit.score(outline_contrast(rendered > 0, coarse_rgb))
         self._hypotheses.sort(key=lambda h: -h[1])
         del self._hypotheses[MAX_HYPOTHESES:]
+
+    def _judge_motion(self, rgb: np.ndarray, K: np.ndarray, T_base_parts: np.ndarray) -> None:
+        """RGB only: the frame joins the clip; from MOTION_MIN_FRAMES on, every MOTION_EVERY frames, the robot is
+        searched for by its motion over the clip (feepe/motion.py), and the hypotheses so far are scored again
+        on it beside the new ones."""
+        self._clip.add(rgb, K, self._robot_samples.placed(T_base_parts)[0])
+        n = len(self._clip)
+        if n < MOTION_MIN_FRAMES or (n - MOTION_MIN_FRAMES) % MOTION_EVERY:
+            return
+        fit = MotionFit(self._clip)
+        found = [[T, fit.score(T)] for T, _ in self._hypotheses] + [list(h) for h in motion_starts(fit, MAX_HYPOTHESES,
+                                                                                                    seed=self.frame)]
+        self._hypotheses = sorted(found, key=lambda h: -h[1])[:MAX_HYPOTHESES]
+
+    def _settled(self, T_new: np.ndarray, T_base_ee: np.ndarray, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray,
+                 found: FrameCandidates, timings: dict) -> tuple[np.ndarray, Segmentation]:
+        """RGB only: a first calibration from the motion lies centimetres off, mostly along the optical axis,
+        which one view's outline barely fixes. The frames seen before join the memory, segmented at it, and the
+        calibration is refined over them and this frame, the frames segmented again, until the robot moves less
+        than a pixel (at most RGB_START_ROUNDS times), not over the next frames."""
+        t0 = time.perf_counter()
+        self._remember_waiting(T_new)
+        timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
+        seen = found.segmentation
+        for _ in range(RGB_START_ROUNDS):
+            self.T_cam_base, self._fitted = T_new, None  # refined over the key frames, not judged to stand
+            self._refresh_key_frames(T_new)
+            T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
+            seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
+            if self.parts.motion_px(placed(T, found.parts), placed(T_new, found.parts), K) < 1.0:
+                break
+        return T_new, seen
+
+    def _remember_waiting(self, T_cam_base: np.ndarray) -> None:
+        """RGB only: the frames seen before the motion gave any hypothesis join the memory once one is accepted,
+        segmented at it (no template path: the outline is what the refinement fits), as later frames do."""
+        for frame, rgb, K, T_base_ee, T_base_parts in self._waiting:
+            no_depth = np.zeros(rgb.shape[:2])
+            seen = segment(self.parts.coarse, T_cam_base, T_base_parts, rgb, no_depth, K, self.colour, self._band_px,
+                           self._depth_sigma)
+            found = FrameCandidates(np.eye(3), [], 0, {}, segmentation=seen, parts=T_base_parts,
+                                    silhouette=mask_view(seen.robot, K, no_depth))
+            self.pool.consider(MemoryEntry(frame, T_base_ee, found), need_candidates=False)
+        self._waiting = []
+
+    def _explains(self, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
+                  K: np.ndarray, seen: Segmentation) -> bool:
+        """Whether a first calibration explains the frame (with depth) or, RGB only, the motion so far and the
+        frame's colours across its outline."""
+        if np.any(depth > 0):
+            return _explains_frame(self.parts, T_cam_base, T_base_parts, rgb, depth, K, seen.view.inside > 0)
+        return (bool(self._hypotheses) and outline_contrast(seen.view.inside > 0, rgb) >= ACCEPT_CONTRAST
+                and MotionFit(self._clip).score(T_cam_base) >= MOTION_KEPT * self._hypotheses[0][1])
 
     def _refresh_key_frames(self, T: np.ndarray) -> None:
         """Key frames segmented at a calibration that has since moved them by more than a pixel are
