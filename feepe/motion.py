@@ -13,7 +13,7 @@ foreground must be, the frames say where anything moved.
 
 The search: rotations uniform on SO(3), each placed at a few distances where its moving parts' pixels overlap
 the changed ones best (a cross-correlation over image shifts, cv2.matchTemplate); the best placements are
-scored and refined by a (1, lambda) evolution strategy on the score. What comes out is a start a centimetre or
+scored and refined by a (1 + lambda) evolution strategy on the score. What comes out is a start a centimetre or
 a few degrees off; the outline refinement on the estimator's own segmentation does the rest.
 """
 
@@ -44,7 +44,7 @@ VIEWS, ROLLS = 160, 16  # the rotations tried: viewing directions on a Fibonacci
 # over (2000 random rotations left a 17.7 deg hole at mini scene 7's true one)
 DISTANCES_M = (0.6, 0.85, 1.2, 1.7, 2.4, 3.4)  # the moving parts' centre placed this far from the camera, then
 DISTANCE_STEPS = (2 ** 0.25, 2 ** 0.125)  # at these factors nearer and farther than the best: a scale off by a
-# sixth moved the placement of mini scene 7's true rotation by 10-19 cm, with these steps 4-5 cm
+# sixth moved the placement of mini scene 7's true rotation by 10-19 cm, with these steps 3.5-4.7 cm
 PLACE_POINTS = 1500  # the moving parts' samples the placement projects
 UNCHANGED_WEIGHT = 0.5  # the placement's cross-correlation: an unchanged pixel under the moving parts costs this
 LOCAL_STARTS = 20  # best placements refined
@@ -254,7 +254,7 @@ def _placed_at(fit: MotionFit, R_cam_base: np.ndarray, weights: np.ndarray, movi
 
 
 def refine(fit: MotionFit, T_cam_base: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, float]:
-    """A (1, lambda) evolution strategy on the score: turns about the robot's centre and shifts (camera frame),
+    """A (1 + lambda) evolution strategy on the score: turns about the robot's centre and shifts (camera frame),
     the best of ES_OFFSPRING kept when it gains, the steps shrunk when none does."""
     centre = fit.centre()
     best = fit.score(T_cam_base)
