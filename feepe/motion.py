@@ -26,7 +26,9 @@ import numba
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from feepe.raster import to_pixel
 from feepe.registration import exposure_gain
+from kernel.camera import project
 from kernel.transforms import rotation_angle
 
 WIDTH_PX = 80  # the coarse images' width: a pixel spans 2-3 cm on a robot 1-2 m away, as the starts are off
@@ -158,10 +160,9 @@ def _drawn(points, T, K, h, w):
             cz = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
             if cz <= 0.05:
                 continue
-            cx = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
-            cy = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
-            u = int(np.floor(K[0, 0] * cx / cz + K[0, 2] + 0.5))
-            v = int(np.floor(K[1, 1] * cy / cz + K[1, 2] + 0.5))
+            pu, pv = to_pixel(K[0, 0], K[1, 1], K[0, 2], K[1, 2], T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3],
+                              T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3], cz)
+            u, v = int(np.floor(pu + 0.5)), int(np.floor(pv + 0.5))
             if 0 <= u < w and 0 <= v < h:
                 dots[f, v, u] = 1
     grown = np.zeros_like(dots)
@@ -237,8 +238,7 @@ def _placed_at(fit: MotionFit, R_cam_base: np.ndarray, weights: np.ndarray, movi
     P = moving @ R_cam_base.T + t
     if np.any(P[:, 2] < 0.05):
         return None, -np.inf
-    u = K[0, 0] * P[:, 0] / P[:, 2] + K[0, 2]
-    v = K[1, 1] * P[:, 1] / P[:, 2] + K[1, 2]
+    u, v = project(P, K, min_z=0.05).T
     u0, v0 = int(np.floor(u.min())), int(np.floor(v.min()))
     tw, th = int(u.max()) - u0 + 1, int(v.max()) - v0 + 1
     if tw >= weights.shape[1] or th >= weights.shape[0] or tw * th < 4:
