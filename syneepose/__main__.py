@@ -11,7 +11,8 @@ from typing import Callable
 
 from kernel.cli import run_command
 from kernel.errors import UserError
-from syneepose.preset import load_preset, templates_with
+from kernel.settings import comma_list
+from syneepose.preset import HARD_CASES, load_preset, templates_with, with_hard_cases
 from syneepose.scene.spec import IR_RENDERS
 from syneepose.templates import INPLANE_BY
 
@@ -112,6 +113,11 @@ def _render_seconds(pixels: int, samples: int) -> float:
     return 0.6 + 1.4e-6 * pixels * samples
 
 
+def _check_hard_case(name: str) -> None:
+    if name not in HARD_CASES:
+        raise UserError(f"--hard: unknown hard case {name!r}; choose from {', '.join(HARD_CASES)}")
+
+
 def _plan_render(args) -> Phase:
     from kernel.bop import SPLIT
     from syneepose import paths, resume
@@ -123,6 +129,9 @@ def _plan_render(args) -> Phase:
     _check_run(args)
     preset = load_preset(args.preset, {"segments": args.segments, "frames": args.frames, "samples": args.samples,
                                        "resolution": _resolution(args.resolution)})
+    if args.hard:
+        preset = with_hard_cases(preset, comma_list(args.hard, "--hard", "hard case",
+                                                    f"choose from {', '.join(HARD_CASES)}", _check_hard_case))
     configs = load_catalog().parse_configs(args.robots)
     shard = parse_shard(args.shard)
     backgrounds = ()
@@ -355,6 +364,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--shard", help="i/N: render every N-th segment starting at i (cluster job arrays)")
     r.add_argument("--marker", action="store_true",
                    help="bolt a ChArUco board to the end-effector (marker hand-eye segments; same scenes otherwise)")
+    r.add_argument("--hard", help=f"comma-separated hard cases to draw ({', '.join(HARD_CASES)}): an object "
+                                  "crossing in front of the end-effector, the end-effector out of view for a run of "
+                                  "frames, link-like objects in the arm's colour (the preset's hard: settings or defaults)")
     r.add_argument("--depth", choices=["exact", "stereo", "both"], default="exact",
                    help="stereo: depth/ from a simulated active-stereo sensor, exact depth in depth_gt/; "
                         "both: also keep its IR pair (ir_left/, ir_right/)")

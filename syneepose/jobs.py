@@ -118,12 +118,14 @@ def make_jobs(content: SceneContent, render: RenderSettings, selection: SegmentS
 def job_settings(content: SceneContent, render: RenderSettings, segments: int) -> dict:
     """What fixes a segment's pixels and ground truth, beside its configuration and segment index: a resume
     must ask for exactly these, or it would mix two renders in one scene. The preset and the sensor profile
-    count by content (a sha256 of what was read), not by name; `segments` is the data set's S (scene_ids.py),
-    which numbers the random streams and stays when a run asks for more segments."""
+    count by content (a sha256 of what was read, with `--hard`'s cases), not by name; `segments` is the data
+    set's S (scene_ids.py), which numbers the random streams and stays when a run asks for more segments."""
     from syneepose.stereo import load_profile
 
-    return {"preset": Path(content.preset_name).stem,
-            "preset_sha256": _digest(load_preset(content.preset_name).digest_content()),
+    preset = load_preset(content.preset_name).digest_content()
+    if content.preset.hard is not None:  # the preset's hard: section with render --hard's cases turned on
+        preset["hard"] = content.preset.hard.model_dump(mode="json")
+    return {"preset": Path(content.preset_name).stem, "preset_sha256": _digest(preset),
             "seed": content.seed, "segments": segments, "frames": content.preset.frames,
             "resolution": [render.width, render.height], "samples": render.samples, "device": render.device,
             "marker": content.marker, "depth": render.depth,

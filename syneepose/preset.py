@@ -75,6 +75,32 @@ class Distractors(Section):
     size: number_range(0.0, exclusive_low=True) = (0.05, 0.3)
 
 
+class Occluder(Section):
+    """An object that crosses the line of sight to the end-effector (scene/hard.py)."""
+    size: number_range(0.0, exclusive_low=True) = (0.08, 0.2)
+    frames: number_range(0.0, 1.0, exclusive_low=True) = (0.2, 0.4)  # share of the frames it covers the end-effector
+    between: number_range(0.0, 1.0, exclusive_low=True) = (0.3, 0.6)  # where on the camera-to-end-effector line
+
+
+class Exit(Section):
+    """The end-effector out of the image for a run of frames (at the start, middle or end of the segment)."""
+    frames: number_range(0.0, 1.0, exclusive_low=True) = (0.2, 0.4)
+
+
+class ArmColoured(Section):
+    """Link-like cylinders painted as the arm is, standing in view behind the robot."""
+    count: int_range(1, 16) = (1, 2)
+    length: number_range(0.0, exclusive_low=True) = (0.2, 0.5)
+    radius: number_range(0.0, exclusive_low=True) = (0.03, 0.07)
+
+
+class Hard(Section):
+    """Hard cases for mask-free estimation (issue 34), each off unless given; `mini` draws none."""
+    occluder: Occluder | None = None
+    exit: Exit | None = None
+    arm_coloured: ArmColoured | None = None
+
+
 class Templates(Section):
     views: int = Field(80, ge=1, le=10000)  # x inplane 12: the paper's 960 templates
     inplane: int = Field(12, ge=1, le=360)
@@ -112,6 +138,7 @@ class Preset(Section):
     world: World = World()
     backdrop: Backdrop
     distractors: Distractors = Distractors()
+    hard: Hard | None = None
     templates: Templates = Templates()
     marker: Marker | None = None
     stations: Stations | None = None
@@ -128,10 +155,12 @@ class Preset(Section):
         equal. Not `templates`: a template set records its own recipe (kernel/template_set.py), and mini's
         going from 240 to 960 templates must not make its frames "other settings". The prefilter counts only
         when it is not Cycles' default, the one every preset rendered with before it could be chosen (issue 36),
-        so those data sets keep their digest."""
+        so those data sets keep their digest; `hard` likewise only when given (issue 34)."""
         content = self.model_dump(mode="json", exclude={"templates"})
         if content["render"]["denoise_prefilter"] == DEFAULT_PREFILTER:
             del content["render"]["denoise_prefilter"]
+        if content["hard"] is None:
+            del content["hard"]
         return content
 
     def legacy_digest_contents(self) -> list[dict]:
@@ -154,6 +183,18 @@ def load_preset(name_or_path: str, overrides: dict | None = None) -> Preset:
 
 def parse_preset(content: dict, source: str = "preset", flags: dict | None = None) -> Preset:
     return validate(Preset, content, source, flags or {}, EXAMPLE)
+
+
+HARD_CASES = ("occluder", "exit", "arm_coloured")  # Hard's fields: what `render --hard` names
+
+
+def with_hard_cases(preset: Preset, names: list[str]) -> Preset:
+    """The preset with the named hard cases on (`render --hard`): each with the preset's own settings where its
+    `hard:` section has them, else the defaults."""
+    current = preset.hard or Hard()
+    defaults = {"occluder": Occluder(), "exit": Exit(), "arm_coloured": ArmColoured()}
+    hard = current.model_copy(update={n: getattr(current, n) or defaults[n] for n in names})
+    return preset.model_copy(update={"hard": hard})
 
 
 def templates_with(preset: Preset, overrides: dict) -> Templates:

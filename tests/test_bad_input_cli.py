@@ -62,6 +62,8 @@ RENDER = [
     (["--shard", "0/0"], ["--shard"]),
     (["--shard=-1/2"], ["--shard"]),
     (["--backgrounds", "/nonexistent/folder"], ["--backgrounds", "no .png/.jpg"]),
+    (["--hard", "smoke"], ["--hard", "smoke", "occluder, exit, arm_coloured"]),
+    (["--hard", "exit,exit"], ["--hard", "exit twice"]),
     (["--depth", "stereo", "--sensor", "nosuch"], ["nosuch"]),
     (["--frames", "2.5"], ["usage", "--frames"]),
     (["--depth", "lidar"], ["usage", "--depth"]),

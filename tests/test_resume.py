@@ -70,6 +70,7 @@ def test_every_scene_and_the_data_set_record_their_settings(seed0):
     (["--samples", "4"], ["samples 2 -> 4"]),
     (["--resolution", "80x60"], ["resolution [64, 48] -> [80, 60]"]),
     (["--marker"], ["marker False -> True"]),
+    (["--hard", "occluder"], ["preset_sha256"]),
 ])
 def test_a_rerun_with_other_settings_is_refused_and_writes_nothing(copy, args, words):
     before = _files(copy)

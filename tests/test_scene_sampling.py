@@ -183,3 +183,85 @@ def test_left_out_distractors_are_recorded_in_the_scene(tmp_path):
         assert read_scene(tmp_path / str(dropped))[0].dropped_distractors == dropped
     # scenes that lost none keep the bytes they had before the record existed
     assert "dropped_distractors" not in json.loads((tmp_path / "0" / "scene_robot.json").read_text())
+
+
+def test_hard_cases_are_off_unless_asked_and_leave_the_plain_plan_as_it_was(ur5e_checks):
+    """A preset without `hard:` keeps its digest (no key added) and plans the same segment as before the
+    section existed; an occluder or arm-coloured objects are drawn after the plain plan, so its camera and
+    motion stay."""
+    from syneepose.preset import with_hard_cases
+
+    robot, checks = ur5e_checks
+    preset = load_preset("mini")
+    assert "hard" not in preset.digest_content()
+    plain = _planned_twice(preset, robot, checks, 3, 0, 16, 320, 240)
+    assert plain.occluders == [] and all(d.kind != "capsule" for d in plain.distractors)
+    for case in ("occluder", "arm_coloured"):
+        spec = _planned_twice(with_hard_cases(preset, [case]), robot, checks, 3, 0, 16, 320, 240)
+        np.testing.assert_array_equal(spec.q, plain.q)
+        np.testing.assert_array_equal(spec.T_base_cam, plain.T_base_cam)
+        assert with_hard_cases(preset, [case]).digest_content()["hard"][case] is not None
+
+
+def test_an_exit_run_is_out_of_view_and_the_other_frames_whole_in_view(ur5e_checks):
+    from syneepose.preset import with_hard_cases
+    from syneepose.scene.hard import free_frames
+
+    robot, checks = ur5e_checks
+    preset = with_hard_cases(load_preset("mini"), ["exit"])
+    for stream in (1, 2, 3):
+        spec = _planned_twice(preset, robot, checks, stream, 23, 16, 320, 240)
+        inside, visible = checks.check(spec.q, spec.T_base_cam, spec.K, 320, 240)
+        out = inside == 0.0
+        k = out.sum()
+        assert 0.2 * 16 - 1 <= k <= 0.4 * 16 + 1
+        assert np.ptp(np.flatnonzero(out)) == k - 1  # one run
+        keep = ~out & ~free_frames(out)
+        assert (inside[keep] >= 0.999).all() and (visible[keep] >= preset.camera.min_visible).all()
+
+
+def test_the_occluder_crosses_the_line_of_sight_between_camera_and_end_effector(ur5e_checks):
+    """At its crossing frame the occluder's centre projects onto the end-effector's origin and lies between
+    the camera and it; it slides level with the floor, so some frames later it is off that line."""
+    from kernel.camera import project
+    from syneepose.preset import with_hard_cases
+
+    robot, checks = ur5e_checks
+    preset = with_hard_cases(load_preset("mini"), ["occluder"])
+    spec = _planned_twice(preset, robot, checks, 3, 0, 16, 320, 240)
+    [occluder] = spec.occluders
+    assert occluder.T_base_obj.shape == (16, 4, 4)
+    T_cam_base = inv_T(spec.T_base_cam)
+    ee = transform_points(T_cam_base, robot.T_base_ee(spec.q)[:, :3, 3])
+    centre = transform_points(T_cam_base, occluder.T_base_obj[:, :3, 3])
+    gap = np.linalg.norm(project(ee, spec.K, min_z=1e-6) - project(centre, spec.K, min_z=1e-6), axis=1)
+    crossing = int(np.argmin(gap))
+    assert gap[crossing] < 1.0
+    assert 0.25 * ee[crossing, 2] < centre[crossing, 2] < 0.65 * ee[crossing, 2]
+    assert gap.max() > 20.0
+    eye, ee_base = spec.T_base_cam[:3, 3], robot.T_base_ee(spec.q)[:, :3, 3]
+    share = np.linalg.norm(occluder.T_base_obj[crossing, :3, 3] - eye) / np.linalg.norm(ee_base[crossing] - eye)
+    sideways = occluder.T_base_obj[:, :3, 3] - (eye + share * (ee_base - eye))
+    np.testing.assert_allclose(sideways[:, 2], 0.0, atol=1e-6)
+
+
+def test_arm_coloured_objects_are_the_arms_colour_and_seen_behind_the_robot(ur5e_checks):
+    from kernel.camera import project
+    from syneepose.preset import with_hard_cases
+    from syneepose.scene.hard import arm_colours
+
+    robot, checks = ur5e_checks
+    preset = with_hard_cases(load_preset("mini"), ["arm_coloured"])
+    spec = _planned_twice(preset, robot, checks, 3, 0, 16, 320, 240)
+    capsules = [d for d in spec.distractors if d.kind == "capsule"]
+    assert len(capsules) + spec.dropped_distractors >= 1 and capsules
+    T_cam_base = inv_T(spec.T_base_cam)
+    farthest = np.linalg.norm(transform_points(T_cam_base, robot.T_base_ee(spec.q)[:, :3, 3]), axis=1).max()
+    colours, shares = arm_colours(robot)
+    assert shares.sum() == pytest.approx(1.0) and len(colours) >= 2
+    for capsule in capsules:
+        assert np.min(np.abs(colours - capsule.surface.color_a).max(1)) < 1e-9 and capsule.surface.kind == "plain"
+        floor = transform_points(T_cam_base, np.r_[capsule.T_base_obj[:2, 3], 0.0][None])[0]
+        u, v = project(floor, spec.K, min_z=1e-6)
+        assert 0 <= u < 320 and 0 <= v < 240 and np.linalg.norm(floor) > farthest
+        assert capsule.radius is not None and 0.3 < np.linalg.norm(capsule.T_base_obj[:2, 3]) < 1.4

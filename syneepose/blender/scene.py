@@ -25,7 +25,7 @@ from syneepose.preset import DEFAULT_PREFILTER
 from syneepose.robots.model import RobotModel
 from syneepose.robots.robot import arm_links
 from syneepose.scene.marker import MarkerBoard
-from syneepose.scene.spec import Distractor, Light, Plane, Surface
+from syneepose.scene.spec import Distractor, Light, Occluder, Plane, Surface
 
 PASS_EE, PASS_BOARD = 1, 3
 PASS_LINK0 = 16  # arm link k (of RobotObjects.arm_links) renders object index PASS_LINK0 + k
@@ -274,19 +274,27 @@ def add_planes(planes: list[Plane]) -> None:
 
 
 DISTRACTOR_MESHES = {
-    "cube": lambda s: trimesh.creation.box(extents=(s, s, s)),
-    "sphere": lambda s: trimesh.creation.icosphere(subdivisions=3, radius=s / 2),
-    "cylinder": lambda s: trimesh.creation.cylinder(radius=s / 3, height=s, sections=48),
-    "torus": lambda s: trimesh.creation.torus(major_radius=s / 2, minor_radius=s / 6),
+    "cube": lambda d: trimesh.creation.box(extents=(d.size,) * 3),
+    "sphere": lambda d: trimesh.creation.icosphere(subdivisions=3, radius=d.size / 2),
+    "cylinder": lambda d: trimesh.creation.cylinder(radius=d.size / 3, height=d.size, sections=48),
+    "torus": lambda d: trimesh.creation.torus(major_radius=d.size / 2, minor_radius=d.size / 6),
+    "capsule": lambda d: trimesh.creation.capsule(height=d.size, radius=d.radius, count=[48, 24]),
 }
+
+
+def _shape(name: str, d: Distractor | Occluder):
+    tm = DISTRACTOR_MESHES[d.kind](d)
+    return _object(name, _mesh(name, tm.vertices, tm.faces), surface_material(name, d.surface), "backdrop")
 
 
 def add_distractors(distractors: list[Distractor]) -> None:
     for i, d in enumerate(distractors):
-        tm = DISTRACTOR_MESHES[d.kind](d.size)
-        ob = _object(f"distractor{i}", _mesh(f"distractor{i}", tm.vertices, tm.faces),
-                     surface_material(f"distractor{i}", d.surface), "backdrop")
-        ob.matrix_world = d.T_base_obj.T.tolist()
+        _shape(f"distractor{i}", d).matrix_world = d.T_base_obj.T.tolist()
+
+
+def add_occluders(occluders: list[Occluder]) -> list:
+    """The moving objects' Blender objects, for the caller to pose every frame (`T_base_obj[i]`)."""
+    return [_shape(f"occluder{i}", o) for i, o in enumerate(occluders)]
 
 
 def add_board(board: MarkerBoard, px_per_m: float = 4000.0):

@@ -61,6 +61,7 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scen
         return 0
     objects = build_scene(spec, render, robot)
     board = bscene.add_board(spec.marker) if spec.marker is not None else None
+    movers = bscene.add_occluders(spec.occluders)
     rig = None
     if sensor is not None:
         lighting = Lighting.of(spec.lights, spec.world_color, spec.world_strength, sensor.ambient)
@@ -72,6 +73,8 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scen
         objects.pose(T_base_link)
         if board is not None:
             board.matrix_world = (T_base_link[robot.ee_root] @ spec.marker.T_ee_board).T.tolist()
+        for ob, occluder in zip(movers, spec.occluders):
+            ob.matrix_world = occluder.T_base_obj[i].T.tolist()
         out = bscene.render(Path(scene_dir))
         depth = np.where(out["depth"] < MAX_DEPTH, out["depth"], 0.0)  # Cycles writes 1e10 where a ray hits nothing
         frame = Frame(

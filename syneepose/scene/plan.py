@@ -7,6 +7,7 @@ import numpy as np
 
 from kernel.errors import UserError
 from syneepose.preset import Preset
+from syneepose.scene import hard
 from syneepose.scene.motion import MotionChecks, trajectory
 from syneepose.scene.sample import rng_for, sample_segment
 from syneepose.scene.spec import SegmentSpec
@@ -22,15 +23,55 @@ def plan_segment(preset: Preset, robot, checks: MotionChecks, stream: int, seed:
         return plan_stations(preset, robot, checks, stream, seed, n_frames, width, height, images)
     rng = rng_for(seed, robot.config, stream)
     motion, min_visible, margin = preset.motion, preset.camera.min_visible, preset.camera.margin
+    cases = preset.hard
+    exits = cases is not None and cases.exit is not None
+    out = None
     for _ in range(MAX_TRAJECTORIES):
         q = trajectory(rng, robot.arm.home, robot.arm.limits, n_frames, motion.waypoints, motion.spread)
         if not checks.above_floor(q, motion.clearance).all() or checks.self_collision(q).any():
             continue
+        if exits:  # drawn with each trajectory: where it leaves the image must suit the trajectory
+            out = hard.exit_run(rng, n_frames, cases.exit)
         for _ in range(MAX_CAMERAS):
-            spec = sample_segment(rng, preset, robot, robot.config, stream, seed, q, width, height, images)
+            spec = sample_segment(rng, preset, robot, robot.config, stream, seed, q, width, height, images,
+                                  in_view=None if out is None else ~out)
+            if out is None:
+                inside, visible = checks.check(q, spec.T_base_cam, spec.K, width, height, margin)
+                if np.all(inside >= 0.999) and np.all(visible >= min_visible):
+                    return _with_hard_cases(rng, preset, robot, checks, spec, np.ones(n_frames, bool), width, height)
+                continue
+            if hard.pan_out(spec, _ee_points(robot, checks, q), out, width, height, margin) is None:
+                continue
             inside, visible = checks.check(q, spec.T_base_cam, spec.K, width, height, margin)
-            if np.all(inside >= 0.999) and np.all(visible >= min_visible):
-                return spec
-    raise UserError(f"{robot.config}: no trajectory and camera met the preset's visibility rules after "
+            keep = ~out & ~hard.free_frames(out)
+            if np.all(inside[keep] >= 0.999) and np.all(visible[keep] >= min_visible):
+                return _with_hard_cases(rng, preset, robot, checks, spec, ~out, width, height)
+    rules = " and hard.exit's run out of view" if out is not None else ""
+    raise UserError(f"{robot.config}: no trajectory and camera met the preset's visibility rules{rules} after "
                     f"{MAX_TRAJECTORIES} x {MAX_CAMERAS} attempts; widen its camera distance or lower "
                     f"camera.min_visible")
+
+
+def _ee_points(robot, checks: MotionChecks, q: np.ndarray) -> np.ndarray:
+    """The end-effector's surface points in the base, per frame: (frames, points, 3)."""
+    T = robot.T_base_link(q)[robot.ee_root]
+    return np.einsum("fij,pj->fpi", T[:, :3, :3], checks.points) + T[:, None, :3, 3]
+
+
+def _with_hard_cases(rng, preset: Preset, robot, checks: MotionChecks, spec: SegmentSpec, in_view: np.ndarray,
+                     width: int, height: int) -> SegmentSpec:
+    """The preset's occluder and arm-coloured objects added to an accepted segment (drawn last: a preset
+    without them plans as before)."""
+    cases = preset.hard
+    if cases is None:
+        return spec
+    ee_path = robot.T_base_ee(spec.q)[:, :3, 3]
+    if cases.occluder is not None:
+        radius = float(np.linalg.norm(checks.points - checks.points.mean(0), axis=1).max())
+        spec.occluders.append(hard.occluder(rng, cases.occluder, preset, spec, ee_path, radius, in_view))
+    if cases.arm_coloured is not None:
+        objects, dropped = hard.arm_coloured(rng, cases.arm_coloured, spec, ee_path, hard.arm_colours(robot),
+                                             width, height)
+        spec.distractors.extend(objects)
+        spec.dropped_distractors += dropped
+    return spec

@@ -140,10 +140,12 @@ def distractors(rng, preset: Preset, avoid: np.ndarray) -> tuple[list[Distractor
 
 
 def sample_segment(rng, preset: Preset, robot, config: str, stream: int, seed: int, q: np.ndarray,
-                   width: int, height: int, images: list[str] | None = None) -> SegmentSpec:
-    """Camera, lights and backdrop around a given arm trajectory `q` (see motion.py)."""
+                   width: int, height: int, images: list[str] | None = None,
+                   in_view: np.ndarray | None = None) -> SegmentSpec:
+    """Camera, lights and backdrop around a given arm trajectory `q` (see motion.py), the camera aimed at the
+    mean end-effector position of the frames `in_view` (all by default)."""
     ee_path = robot.T_base_ee(q)[:, :3, 3]
-    target = ee_path.mean(0)
+    target = ee_path[in_view].mean(0) if in_view is not None else ee_path.mean(0)
     K = intrinsics(rng, preset, width, height)
     cam = preset.camera
     azimuth = np.deg2rad(uniform(rng, cam.azimuth_deg))

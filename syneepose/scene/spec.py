@@ -40,9 +40,20 @@ class Light:
 
 @dataclass
 class Distractor:
-    kind: str  # "cube" | "sphere" | "cylinder" | "torus"
-    size: float
+    kind: str  # "cube" | "sphere" | "cylinder" | "torus" | "capsule"
+    size: float  # a capsule's length between its two caps' centres
     T_base_obj: np.ndarray
+    surface: Surface
+    radius: float | None = None  # a capsule's (scene/hard.py's arm-coloured links)
+
+
+@dataclass
+class Occluder:
+    """An object moving through the scene (scene/hard.py): a pose per frame."""
+
+    kind: str  # "cube" | "sphere" | "cylinder"
+    size: float
+    T_base_obj: np.ndarray  # (n_frames, 4, 4)
     surface: Surface
 
 
@@ -63,6 +74,7 @@ class SegmentSpec:
     planes: list[Plane] = field(default_factory=list)
     distractors: list[Distractor] = field(default_factory=list)
     dropped_distractors: int = 0  # sampled objects left out: no place away from the robot was found
+    occluders: list[Occluder] = field(default_factory=list)
     marker: MarkerBoard | None = None  # a ChArUco board bolted to the end-effector (marker hand-eye segments)
 
     @property
