@@ -77,9 +77,9 @@ class Distractors(Section):
 
 class Occluder(Section):
     """An object that crosses the line of sight to the end-effector (scene/hard.py)."""
-    size: number_range(0.0, exclusive_low=True) = (0.08, 0.2)
+    size: number_range(0.0, exclusive_low=True) = (0.06, 0.15)
     frames: number_range(0.0, 1.0, exclusive_low=True) = (0.2, 0.4)  # share of the frames it covers the end-effector
-    between: number_range(0.0, 1.0, exclusive_low=True) = (0.3, 0.6)  # where on the camera-to-end-effector line
+    between: number_range(0.0, 1.0, exclusive_low=True) = (0.65, 0.85)  # where on the camera-to-end-effector line
 
 
 class Exit(Section):

@@ -18,6 +18,7 @@ from syneepose.scene.spec import Distractor, Occluder, SegmentSpec, Surface
 TRANSITION = 2  # frames beside an exit run where the end-effector may be partly in view
 PAN_STEPS_DEG = np.arange(0.0, 45.0, 1.5)  # camera turns tried to take the exit run out of view
 OCCLUDER_KINDS = ("cube", "sphere", "cylinder")
+CLEARANCE_M = 0.02  # the occluder's surface stays this far in front of the end-effector's bounding sphere
 
 
 def exit_run(rng, n_frames: int, settings: Exit) -> np.ndarray:
@@ -80,6 +81,8 @@ def occluder(rng, settings: OccluderSettings, preset: Preset, spec: SegmentSpec,
     side = np.cross(ee_path[crossing] - eye, [0.0, 0.0, 1.0])
     side *= rng.choice([-1.0, 1.0]) / max(np.linalg.norm(side), 1e-9)
     size = uniform(rng, settings.size)
+    reach = np.linalg.norm(ee_path - eye, axis=1).min()
+    between = min(between, 1.0 - (size / 2 + ee_radius + CLEARANCE_M) / reach)  # never inside the end-effector
     covered = max(uniform(rng, settings.frames) * n, 1.0)
     step = (size + 2 * ee_radius * between) / covered
     kind = str(rng.choice(OCCLUDER_KINDS))
