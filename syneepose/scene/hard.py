@@ -21,13 +21,16 @@ OCCLUDER_KINDS = ("cube", "sphere", "cylinder")
 CLEARANCE_M = 0.02  # the occluder's surface stays this far in front of the end-effector's bounding sphere
 
 
-def exit_run(rng, n_frames: int, settings: Exit) -> np.ndarray:
-    """Which frames the end-effector is out of view: one run at the start, the middle or the end."""
+def exit_runs(rng, n_frames: int, settings: Exit) -> list[np.ndarray]:
+    """Which frames the end-effector may be out of view: one run of a drawn length, at the start, the middle
+    or the end (in a drawn order)."""
     k = int(np.clip(round(uniform(rng, settings.frames) * n_frames), 1, max(n_frames - 2 * TRANSITION - 1, 1)))
-    start = [0, (n_frames - k) // 2, n_frames - k][int(rng.integers(3))]
-    out = np.zeros(n_frames, bool)
-    out[start:start + k] = True
-    return out
+    runs = []
+    for start in rng.permutation([0, (n_frames - k) // 2, n_frames - k]):
+        out = np.zeros(n_frames, bool)
+        out[start:start + k] = True
+        runs.append(out)
+    return runs
 
 
 def free_frames(out: np.ndarray) -> np.ndarray:

@@ -25,28 +25,25 @@ def plan_segment(preset: Preset, robot, checks: MotionChecks, stream: int, seed:
     motion, min_visible, margin = preset.motion, preset.camera.min_visible, preset.camera.margin
     cases = preset.hard
     exits = cases is not None and cases.exit is not None
-    out = None
     for _ in range(MAX_TRAJECTORIES):
         q = trajectory(rng, robot.arm.home, robot.arm.limits, n_frames, motion.waypoints, motion.spread)
         if not checks.above_floor(q, motion.clearance).all() or checks.self_collision(q).any():
             continue
-        if exits:  # drawn with each trajectory: where it leaves the image must suit the trajectory
-            out = hard.exit_run(rng, n_frames, cases.exit)
+        # where the end-effector leaves the image must suit the trajectory: each place of the run is tried
+        runs = hard.exit_runs(rng, n_frames, cases.exit) if exits else [None]
         for _ in range(MAX_CAMERAS):
-            spec = sample_segment(rng, preset, robot, robot.config, stream, seed, q, width, height, images,
-                                  in_view=None if out is None else ~out)
-            if out is None:
+            for out in runs:
+                spec = sample_segment(rng, preset, robot, robot.config, stream, seed, q, width, height, images,
+                                      in_view=None if out is None else ~out)
+                in_view, keep = np.ones(n_frames, bool), np.ones(n_frames, bool)
+                if out is not None:
+                    if hard.pan_out(spec, _ee_points(robot, checks, q), out, width, height, margin) is None:
+                        continue
+                    in_view, keep = ~out, ~out & ~hard.free_frames(out)
                 inside, visible = checks.check(q, spec.T_base_cam, spec.K, width, height, margin)
-                if np.all(inside >= 0.999) and np.all(visible >= min_visible):
-                    return _with_hard_cases(rng, preset, robot, checks, spec, np.ones(n_frames, bool), width, height)
-                continue
-            if hard.pan_out(spec, _ee_points(robot, checks, q), out, width, height, margin) is None:
-                continue
-            inside, visible = checks.check(q, spec.T_base_cam, spec.K, width, height, margin)
-            keep = ~out & ~hard.free_frames(out)
-            if np.all(inside[keep] >= 0.999) and np.all(visible[keep] >= min_visible):
-                return _with_hard_cases(rng, preset, robot, checks, spec, ~out, width, height)
-    rules = " and hard.exit's run out of view" if out is not None else ""
+                if np.all(inside[keep] >= 0.999) and np.all(visible[keep] >= min_visible):
+                    return _with_hard_cases(rng, preset, robot, checks, spec, in_view, width, height)
+    rules = " and hard.exit's run out of view" if exits else ""
     raise UserError(f"{robot.config}: no trajectory and camera met the preset's visibility rules{rules} after "
                     f"{MAX_TRAJECTORIES} x {MAX_CAMERAS} attempts; widen its camera distance or lower "
                     f"camera.min_visible")
