@@ -25,14 +25,14 @@ from feepe.memory import MemoryEntry, MemoryPool
 from feepe.motion import CLIP_FRAMES, MotionClip, MotionFit, motion_starts
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
-from feepe.registration import DepthFit, depth_fit, outline_contrast, register
+from feepe.registration import DepthFit, depth_fit, is_new, outline_contrast, register
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
 from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, segment
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
                               mean_iou, placed, strided)
 from feepe.symmetry import consensus
 from kernel.errors import UserError
-from kernel.transforms import inv_T, rotation_angle, transform_points
+from kernel.transforms import inv_T, transform_points
 
 VARIANTS = ("A", "B", "C", "D")
 REFINEMENTS = ("none", "silhouette", "silhouette+depth")
@@ -419,8 +419,7 @@ class Estimator:
         robot's surface samples placed by this frame's joint states (base frame)."""
         known = [h[0] for h in self._hypotheses]
         for T in register(model, depth, K, seed=self.frame):
-            if all(rotation_angle(T[:3, :3], U[:3, :3]) > 2.0 or np.linalg.norm(T[:3, 3] - U[:3, 3]) > 0.02
-                   for U in known):
+            if is_new(T, known):
                 self._hypotheses.append([T, 0.0])
                 known.append(T)
         coarse_rgb, _ = strided(rgb, K, IOU_STRIDE)

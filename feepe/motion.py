@@ -27,9 +27,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from feepe.raster import to_pixel
-from feepe.registration import exposure_gain
+from feepe.registration import exposure_gain, is_new
 from kernel.camera import project
-from kernel.transforms import rotation_angle
 
 WIDTH_PX = 80  # the coarse images' width: a pixel spans 2-3 cm on a robot 1-2 m away, as the starts are off
 CHANGE_RGB = 25.0  # colour distance (0-255, the image brought to white) between two frames that counts as a change
@@ -55,7 +54,6 @@ ES_STEP = (0.12, 0.06)  # its first steps' spread: rad about the robot's centre,
 ES_DEPTH_STEPS = 3.0  # its steps along the optical axis this many times wider: a robot's image moves about
 # distance / size (3 at 1.5 m) times less when it moves along the axis than across it
 ES_SHRINK, ES_MIN_RAD = 0.7, 0.005  # a round without gain shrinks the steps so; below this the search ends
-SAME_DEG, SAME_M = 2.0, 0.02  # results closer than this are one
 
 
 @dataclass
@@ -313,7 +311,6 @@ def motion_starts(fit: MotionFit, keep: int, seed: int = 0) -> list[tuple[np.nda
     refined = sorted((refine(fit, T, rng) for T in ranked), key=lambda r: -r[1])
     out: list[tuple[np.ndarray, float]] = []
     for T, s in refined:
-        if all(rotation_angle(T[:3, :3], U[:3, :3]) > np.deg2rad(SAME_DEG) or np.linalg.norm(T[:3, 3] - U[:3, 3]) > SAME_M
-               for U, _ in out):
+        if is_new(T, [U for U, _ in out]):
             out.append((T, s))
     return out[:keep]

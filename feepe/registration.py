@@ -39,6 +39,7 @@ MAX_PLANES = 4  # floor and walls
 RANSAC_TRIALS = 200
 ICP_GATES_M = (0.1, 0.01)  # ICP's association gate shrinks from 10 cm to 1 cm over its rounds
 ICP_ROUNDS = 8
+SAME_DEG, SAME_M = 2.0, 0.02  # calibration hypotheses closer than this in rotation and translation are one
 SEEN_THROUGH_WEIGHT = 2.0  # a pixel that sees through the model costs two that agree with it
 SEEN_THROUGH_M = 0.03  # and sees at least this far behind the model's surface, past the agreement's tolerance: a
 # stereo camera's depth on thin parts spreads a few centimetres behind them (D435 model, mini-stereo scene 0 at
@@ -105,9 +106,16 @@ def register(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 
             if len(planes.target_cam) < 6:
                 break
             T, _ = optimize(T, no_matches, OptimizeOptions(max_iterations=10), [PlaneTerm(planes, PLANE_TOL_M / 3)])
-        if all(rotation_angle(T[:3, :3], U[:3, :3]) > 2.0 or np.linalg.norm(T[:3, 3] - U[:3, 3]) > 0.02 for U in out):
+        if is_new(T, out):
             out.append(T)
     return out
+
+
+def is_new(T: np.ndarray, known: list[np.ndarray]) -> bool:
+    """Whether the calibration T differs from each of `known` by more than SAME_DEG or SAME_M: of several
+    near-equal hypotheses one is kept."""
+    return all(rotation_angle(T[:3, :3], U[:3, :3]) > np.deg2rad(SAME_DEG) or np.linalg.norm(T[:3, 3] - U[:3, 3]) > SAME_M
+               for U in known)
 
 
 @dataclass

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from feepe import raster
 from feepe.icp import SurfaceModel
-from feepe.registration import CONTRAST_RGB, background_planes, depth_fit, outline_contrast, register
+from feepe.registration import CONTRAST_RGB, background_planes, depth_fit, is_new, outline_contrast, register
 from feepe.robot_starts import RobotSamples
 from feepe.segmentation import ColourModel, segment, trust
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, iou
@@ -72,6 +72,16 @@ def test_the_arm_is_found_in_a_depth_image_with_a_floor_and_a_wall():
     turned = T_CAM_BASE @ make_T(Rotation.from_euler("z", 10, degrees=True).as_matrix())
     fits = [depth_fit(parts.render_depth(np.repeat(T[None], 4, 0), K, SHAPE), depth) for T in (T_CAM_BASE, turned)]
     assert fits[0].score() > fits[1].score() and fits[0].agree > 0.95 * fits[0].drawn
+
+
+def test_hypotheses_at_one_place_turned_apart_are_two_and_near_equal_ones_one():
+    """Two calibrations are one hypothesis only when they are within 2 deg and 2 cm: one turned by 10 deg (or
+    by a half turn, the robot seen from behind) at the same place is another."""
+    for deg, new in ((1.0, False), (10.0, True), (120.0, True), (180.0, True)):
+        T = T_CAM_BASE @ make_T(Rotation.from_euler("z", deg, degrees=True).as_matrix())
+        assert is_new(T, [T_CAM_BASE]) is new, deg
+    assert is_new(T_CAM_BASE @ make_T(t=[0.03, 0.0, 0.0]), [T_CAM_BASE])
+    assert not is_new(T_CAM_BASE @ make_T(t=[0.01, 0.0, 0.0]), [T_CAM_BASE])
 
 
 @pytest.mark.parametrize("occluder", [False, True])
