@@ -194,7 +194,7 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
             _add_normal_equations(np.ascontiguousarray(e, dtype=float), np.ascontiguousarray(J, dtype=float), H, g)
         H = np.triu(H) + np.triu(H, 1).T
         if opts.min_decrease > 0:
-            x = np.linalg.solve(H + DIAG_FLOOR * np.eye(6), -g)
+            x = np.linalg.lstsq(H, -g, rcond=None)[0]  # of least norm where no residual moves a direction
             if -(g @ x + 0.5 * x @ H @ x) < opts.min_decrease * cost:
                 break
         while True:
