@@ -22,7 +22,7 @@ SHAPE = (240, 320)
 T_CAM_BASE = inv_T(make_T(Rotation.from_euler("xyz", [-2.2, 0.0, 0.4]).as_matrix(), [0.6, -1.2, 0.9]))
 
 
-def _scene(occluder: bool = False, seed: int = 0):
+def _scene(occluder: bool = False, seed: int = 0, K=K):
     """Depth and colours of the arm (parts in place: base frame = part frame) on a floor and before a wall,
     each part's true visible mask; `occluder`: a green box 20 cm in front of the upper arm."""
     rng = np.random.default_rng(seed)
@@ -72,6 +72,25 @@ def test_the_arm_is_found_in_a_depth_image_with_a_floor_and_a_wall():
     turned = T_CAM_BASE @ make_T(Rotation.from_euler("z", 10, degrees=True).as_matrix())
     fits = [depth_fit(parts.render_depth(np.repeat(T[None], 4, 0), K, SHAPE), depth) for T in (T_CAM_BASE, turned)]
     assert fits[0].score() > fits[1].score() and fits[0].agree > 0.95 * fits[0].drawn
+
+
+def test_a_first_estimate_needs_more_of_the_robot_in_view_than_a_sliver():
+    """At the true calibration the frame is explained; with the camera turned so that a sliver of the arm stays
+    at the image's edge, depth and colour still agree with it there, but so would a calibration a metre off
+    that puts another link in that place (hard-case seed 23): no first estimate from it."""
+    from feepe.estimator import ACCEPT_MIN_SHARE, _explains_frame
+
+    in_base = np.repeat(np.eye(4)[None], 4, 0)  # the parts' meshes are in the base frame
+    parts, T_parts, depth, rgb, visible, _ = _scene()
+    assert _explains_frame(parts, T_CAM_BASE, in_base, rgb, depth, K, visible)
+    columns = np.flatnonzero(visible.any(0))
+    turned = K.copy()
+    turned[0, 2] -= columns[-1] - 12  # the arm's last dozen columns stay at the image's left edge
+    parts, T_parts, depth, rgb, visible, _ = _scene(K=turned)
+    assert 0 < visible.mean() < ACCEPT_MIN_SHARE
+    fit = depth_fit(parts.render_depth(T_parts, turned, SHAPE), depth)
+    assert fit.agree > 0.9 * fit.drawn and outline_contrast(visible, rgb) > 0.8
+    assert not _explains_frame(parts, T_CAM_BASE, in_base, rgb, depth, turned, visible)
 
 
 def test_hypotheses_at_one_place_turned_apart_are_two_and_near_equal_ones_one():
