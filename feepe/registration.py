@@ -114,8 +114,8 @@ def register(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 
 def is_new(T: np.ndarray, known: list[np.ndarray]) -> bool:
     """Whether the calibration T differs from each of `known` by more than SAME_DEG or SAME_M: of several
     near-equal hypotheses one is kept."""
-    return all(rotation_angle(T[:3, :3], U[:3, :3]) > np.deg2rad(SAME_DEG) or np.linalg.norm(T[:3, 3] - U[:3, 3]) > SAME_M
-               for U in known)
+    return all(rotation_angle(T[:3, :3], U[:3, :3]) > np.deg2rad(SAME_DEG)
+               or np.linalg.norm(T[:3, 3] - U[:3, 3]) > SAME_M for U in known)
 
 
 @dataclass

@@ -365,8 +365,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--marker", action="store_true",
                    help="bolt a ChArUco board to the end-effector (marker hand-eye segments; same scenes otherwise)")
     r.add_argument("--hard", help=f"comma-separated hard cases to draw ({', '.join(HARD_CASES)}): an object "
-                                  "crossing in front of the end-effector, the end-effector out of view for a run of "
-                                  "frames, link-like objects in the arm's colour (the preset's hard: settings or defaults)")
+                                  "crossing in front of the end-effector, the end-effector out of view for a run "
+                                  "of frames, link-like objects in the arm's colours (the preset's hard: settings "
+                                  "or defaults)")
     r.add_argument("--depth", choices=["exact", "stereo", "both"], default="exact",
                    help="stereo: depth/ from a simulated active-stereo sensor, exact depth in depth_gt/; "
                         "both: also keep its IR pair (ir_left/, ir_right/)")

@@ -88,7 +88,8 @@ class Exit(Section):
 
 
 class ArmColoured(Section):
-    """Link-like cylinders painted as the arm is, standing in view behind the robot."""
+    """Capsules as long and thick as links, each in one of the arm's colours, lying or standing in view behind
+    the robot."""
     count: int_range(1, 16) = (1, 2)
     length: number_range(0.0, exclusive_low=True) = (0.2, 0.5)
     radius: number_range(0.0, exclusive_low=True) = (0.03, 0.07)

@@ -216,7 +216,7 @@ def test_the_template_settings_are_not_render_settings(copy, tmp_path):
     (tmp_path / "mini.yaml").write_text(yaml.safe_dump(preset))
     proc = _render(copy, "--preset", str(tmp_path / "mini.yaml"))
     assert proc.returncode == 0, proc.stderr[-2000:]
-    legacy = load_preset("mini").model_dump(mode="json")
+    legacy = load_preset("mini").model_dump(mode="json", exclude={"hard"})  # recorded before `hard` existed
     legacy["templates"] = {"views": 20, "inplane": 12, "resolution": 128, "samples": 8}
     meta_path = _scene(copy) / "scene_robot.json"
     meta = json.loads(meta_path.read_text())

@@ -51,9 +51,9 @@ def _inside(points_base: np.ndarray, T_base_cam: np.ndarray, K: np.ndarray, widt
     return ok.mean(-1)
 
 
-def pan_out(spec: SegmentSpec, points_base: np.ndarray, out: np.ndarray, width: int, height: int,
-            margin: float) -> SegmentSpec | None:
-    """The camera turned about its centre, away from the exit run, by the smallest angle that takes every
+def turned_away(spec: SegmentSpec, points_base: np.ndarray, out: np.ndarray, width: int, height: int,
+                margin: float) -> np.ndarray | None:
+    """T_base_cam turned about its centre, away from the exit run, by the smallest angle that takes every
     end-effector point of the run out of view and keeps the other frames (but the transitions) whole in view;
     None if no turn does."""
     keep = ~out & ~free_frames(out)
@@ -66,8 +66,7 @@ def pan_out(spec: SegmentSpec, points_base: np.ndarray, out: np.ndarray, width: 
         T = spec.T_base_cam @ make_T(trimesh.transformations.rotation_matrix(angle, axis)[:3, :3])
         inside = _inside(points_base, T, spec.K, width, height, margin)
         if np.all(inside[keep] >= 0.999) and np.all(inside[out] == 0.0):
-            spec.T_base_cam = T
-            return spec
+            return T
     return None
 
 

@@ -3,6 +3,8 @@ with the preset's `stations:` section, calibration stations where a marker board
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from kernel.errors import UserError
@@ -37,8 +39,10 @@ def plan_segment(preset: Preset, robot, checks: MotionChecks, stream: int, seed:
                                       in_view=None if out is None else ~out)
                 in_view, keep = np.ones(n_frames, bool), np.ones(n_frames, bool)
                 if out is not None:
-                    if hard.pan_out(spec, _ee_points(robot, checks, q), out, width, height, margin) is None:
+                    T_base_cam = hard.turned_away(spec, _ee_points(robot, checks, q), out, width, height, margin)
+                    if T_base_cam is None:
                         continue
+                    spec = replace(spec, T_base_cam=T_base_cam)
                     in_view, keep = ~out, ~out & ~hard.free_frames(out)
                 inside, visible = checks.check(q, spec.T_base_cam, spec.K, width, height, margin)
                 if np.all(inside[keep] >= 0.999) and np.all(visible[keep] >= min_visible):
@@ -65,10 +69,11 @@ def _with_hard_cases(rng, preset: Preset, robot, checks: MotionChecks, spec: Seg
     ee_path = robot.T_base_ee(spec.q)[:, :3, 3]
     if cases.occluder is not None:
         radius = float(np.linalg.norm(checks.points - checks.points.mean(0), axis=1).max())
-        spec.occluders.append(hard.occluder(rng, cases.occluder, preset, spec, ee_path, radius, in_view))
+        spec = replace(spec, occluders=[hard.occluder(rng, cases.occluder, preset, spec, ee_path, radius,
+                                                      in_view)])
     if cases.arm_coloured is not None:
         objects, dropped = hard.arm_coloured(rng, cases.arm_coloured, spec, ee_path, hard.arm_colours(robot),
                                              width, height)
-        spec.distractors.extend(objects)
-        spec.dropped_distractors += dropped
+        spec = replace(spec, distractors=spec.distractors + objects,
+                       dropped_distractors=spec.dropped_distractors + dropped)
     return spec
