@@ -377,13 +377,14 @@ class Estimator:
             T_new, score, n_keys = self._estimate(found, T_base_ee, timings, prior=T)
             timings["optimisation"] = 1e3 * (time.perf_counter() - t0) - timings.get("refinement", 0.0)
             seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
-            accepted = self.T_cam_base is not None or self._explains(T_new, T_base_parts, rgb, depth, K, seen)
+            accepted = self.T_cam_base is not None or self._explains(T_new, T_base_parts, rgb, depth, K, seen,
+                                                                     has_depth)
             for _ in range(START_ROUNDS):
                 if accepted:
                     break
                 T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
                 seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
-                accepted = self._explains(T_new, T_base_parts, rgb, depth, K, seen)
+                accepted = self._explains(T_new, T_base_parts, rgb, depth, K, seen, has_depth)
             if accepted and self.T_cam_base is None and self._waiting:
                 T_new, seen = self._settled(T_new, T_base_ee, rgb, depth, K, found, timings)
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found), need_candidates=False)
@@ -477,10 +478,10 @@ class Estimator:
         self._waiting = []
 
     def _explains(self, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
-                  K: np.ndarray, seen: Segmentation) -> bool:
+                  K: np.ndarray, seen: Segmentation, has_depth: bool) -> bool:
         """Whether a first calibration explains the frame (with depth) or, RGB only, the motion so far and the
         frame's colours across its outline."""
-        if np.any(depth > 0):
+        if has_depth:
             return _explains_frame(self.parts, T_cam_base, T_base_parts, rgb, depth, K, seen.view.inside > 0)
         return (bool(self._hypotheses) and outline_contrast(seen.view.inside > 0, rgb) >= ACCEPT_CONTRAST
                 and MotionFit(self._clip).score(T_cam_base) >= MOTION_KEPT * self._hypotheses[0][1])

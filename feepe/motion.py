@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 from feepe.raster import to_pixel
 from feepe.registration import exposure_gain, is_new
 from kernel.camera import project
+from kernel.transforms import fibonacci_sphere
 
 WIDTH_PX = 80  # the coarse images' width: a pixel spans 2-3 cm on a robot 1-2 m away, as the starts are off
 CHANGE_RGB = 25.0  # colour distance (0-255, the image brought to white) between two frames that counts as a change
@@ -284,9 +285,7 @@ def _moved(T: np.ndarray, centre_base: np.ndarray, rotvec: np.ndarray, shift: np
 def rotation_grid(views: int, rolls: int) -> np.ndarray:
     """(views x rolls, 3, 3) R_cam_base: the camera's optical axis along each of `views` directions spread evenly
     over the sphere (a Fibonacci lattice), turned about it in `rolls` even steps."""
-    k = np.arange(views) + 0.5
-    polar, azimuth = np.arccos(1 - 2 * k / views), np.pi * (1 + 5 ** 0.5) * k
-    axis = np.stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)], 1)
+    axis = fibonacci_sphere(views)
     helper = np.where(np.abs(axis[:, 2:]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
     x = np.cross(helper, axis)
     x /= np.linalg.norm(x, axis=1, keepdims=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from kernel.transforms import inv_T, make_T
+from kernel.transforms import fibonacci_sphere, inv_T, make_T
 from syneepose.scene.sample import look_at
 
 FOV_DEG = 30.0
@@ -19,15 +19,6 @@ DEPTH_EDGE_M = 0.005  # roll_template: neighbouring depths further apart than th
 INPLANE_BY = ("rotated", "rendered")  # in-plane rotations: rolled from the view's render (roll_template), or rendered
 # The denoiser's fast prefilter: at 128 px the accurate one cost 0.3 s of a view's 0.39 s (issue 36, docs/syneepose.md)
 DENOISE_PREFILTER = "fast"
-
-
-def fibonacci_sphere(n: int) -> np.ndarray:
-    """n nearly uniform unit vectors (golden-angle spiral)."""
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    r = np.sqrt(1.0 - z**2)
-    phi = np.pi * (1.0 + 5.0**0.5) * i
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
 
 
 def intrinsics(resolution: int) -> np.ndarray:

@@ -8,13 +8,13 @@ import pytest
 
 from kernel.bop import Frame, SceneMeta, SceneWriter, read_scene
 from kernel.errors import UserError
-from kernel.transforms import inv_T, transform_points
+from kernel.transforms import fibonacci_sphere, inv_T, transform_points
 from syneepose.jobs import SceneContent, SegmentSelection, make_jobs, parse_shard
 from syneepose.preset import load_preset, parse_preset
 from syneepose.scene.motion import min_jerk, trajectory
 from syneepose.scene.sample import distractors, kelvin_to_rgb, look_at, rng_for
 from syneepose.scene.spec import RenderSettings
-from syneepose.templates import fibonacci_sphere, poses
+from syneepose.templates import poses
 
 
 def test_look_at_points_the_optical_axis():

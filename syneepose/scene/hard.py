@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from kernel.camera import project
-from kernel.transforms import inv_T, make_T, transform_points
+from kernel.transforms import axis_angle_to_R, inv_T, make_T, transform_points
 from syneepose.colour import srgb_to_linear
 from syneepose.preset import ArmColoured, Exit, Occluder as OccluderSettings, Preset
+from syneepose.scene.motion import in_image
 from syneepose.scene.sample import MAX_PLACEMENTS, random_surface, uniform
 from syneepose.scene.spec import Distractor, Occluder, SegmentSpec, Surface
 
@@ -41,16 +41,6 @@ def free_frames(out: np.ndarray) -> np.ndarray:
     return near & ~out
 
 
-def _inside(points_base: np.ndarray, T_base_cam: np.ndarray, K: np.ndarray, width: int, height: int,
-            margin: float) -> np.ndarray:
-    """Per frame, the share of the end-effector's points (frames, points, 3) in front of and inside the image."""
-    p = transform_points(inv_T(T_base_cam), points_base.reshape(-1, 3)).reshape(points_base.shape)
-    uv = project(p, K, min_z=1e-9)
-    ok = (p[..., 2] > 0.05) & (uv[..., 0] >= margin * width) & (uv[..., 0] <= (1 - margin) * width - 1) \
-        & (uv[..., 1] >= margin * height) & (uv[..., 1] <= (1 - margin) * height - 1)
-    return ok.mean(-1)
-
-
 def turned_away(spec: SegmentSpec, points_base: np.ndarray, out: np.ndarray, width: int, height: int,
                 margin: float) -> np.ndarray | None:
     """T_base_cam turned about its centre, away from the exit run, by the smallest angle that takes every
@@ -62,9 +52,10 @@ def turned_away(spec: SegmentSpec, points_base: np.ndarray, out: np.ndarray, wid
     if np.linalg.norm(away) < 1e-9:
         return None
     axis = np.cross([0.0, 0.0, 1.0], [*away / np.linalg.norm(away), 0.0])
-    for angle in np.deg2rad(PAN_STEPS_DEG):
-        T = spec.T_base_cam @ make_T(trimesh.transformations.rotation_matrix(angle, axis)[:3, :3])
-        inside = _inside(points_base, T, spec.K, width, height, margin)
+    for R in axis_angle_to_R(axis, np.deg2rad(PAN_STEPS_DEG)):
+        T = spec.T_base_cam @ make_T(R)
+        p_cam = transform_points(inv_T(T), points_base.reshape(-1, 3)).reshape(points_base.shape)
+        inside = in_image(p_cam, spec.K, width, height, margin).mean(-1)
         if np.all(inside[keep] >= 0.999) and np.all(inside[out] == 0.0):
             return T
     return None
@@ -138,11 +129,10 @@ def arm_coloured(rng, settings: ArmColoured, spec: SegmentSpec, avoid: np.ndarra
         else:
             dropped += 1
             continue
-        R = make_T(trimesh.transformations.rotation_matrix(yaw, [0, 0, 1])[:3, :3])
+        R = make_T(axis_angle_to_R([0.0, 0.0, 1.0], yaw))
         if standing:
             T = make_T(t=[xy[0], xy[1], length / 2 + radius]) @ R
         else:
-            T = make_T(t=[xy[0], xy[1], radius]) @ R @ make_T(trimesh.transformations.rotation_matrix(
-                np.pi / 2, [1, 0, 0])[:3, :3])
+            T = make_T(t=[xy[0], xy[1], radius]) @ R @ make_T(axis_angle_to_R([1.0, 0.0, 0.0], np.pi / 2))
         out.append(Distractor("capsule", length, T, Surface("plain", colour, colour, 1.0, 0.4), radius=radius))
     return out, dropped

@@ -29,6 +29,14 @@ def trajectory(rng, home, limits, n_frames: int, n_waypoints: int, spread: float
     return way[k] + blend * (way[k + 1] - way[k])
 
 
+def in_image(p_cam: np.ndarray, K: np.ndarray, width: int, height: int, margin: float) -> np.ndarray:
+    """Which camera points (..., 3) lie 5 cm or more in front of the camera and inside the image, `margin` (a
+    share of its size) from its border."""
+    uv = project(p_cam, K, min_z=1e-9)
+    return (p_cam[..., 2] > 0.05) & (uv[..., 0] >= margin * width) & (uv[..., 0] <= (1 - margin) * width - 1) \
+        & (uv[..., 1] >= margin * height) & (uv[..., 1] <= (1 - margin) * height - 1)
+
+
 class MotionChecks:
     """Fast pre-render checks on convex link hulls: end-effector points projected into the image and
     ray-cast against the arm (a conservative occluder), floor clearance and self-collision."""
@@ -103,10 +111,7 @@ class MotionChecks:
         inside, visible = np.zeros(len(q)), np.zeros(len(q))
         for i in range(len(q)):
             p_cam = transform_points(T_cam_base @ poses[self.robot.ee_root][i], points_ee)
-            z = p_cam[:, 2]
-            uv = project(p_cam, K, min_z=1e-9)
-            ok = (z > 0.05) & (uv[:, 0] >= margin * width) & (uv[:, 0] <= (1 - margin) * width - 1) \
-                & (uv[:, 1] >= margin * height) & (uv[:, 1] <= (1 - margin) * height - 1)
+            ok = in_image(p_cam, K, width, height, margin)
             inside[i] = ok.mean()
             if not ok.any():
                 continue
@@ -121,6 +126,11 @@ class MotionChecks:
             blocked[ray_idx[hit]] = True
             visible[i] = (~blocked).sum() / len(points_ee)
         return inside, visible
+
+    def ee_points(self, q: np.ndarray) -> np.ndarray:
+        """The end-effector's surface points (`points`) in the base, per frame: (frames, points, 3)."""
+        T = self.robot.T_base_link(q)[self.robot.ee_root]
+        return np.einsum("fij,pj->fpi", T[:, :3, :3], self.points) + T[:, None, :3, 3]
 
     def above_floor(self, q: np.ndarray, clearance: float) -> np.ndarray:
         """Every moving arm link origin stays clearance/2 above the floor (z = 0), the mount `clearance`."""

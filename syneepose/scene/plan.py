@@ -39,7 +39,7 @@ def plan_segment(preset: Preset, robot, checks: MotionChecks, stream: int, seed:
                                       in_view=None if out is None else ~out)
                 in_view, keep = np.ones(n_frames, bool), np.ones(n_frames, bool)
                 if out is not None:
-                    T_base_cam = hard.turned_away(spec, _ee_points(robot, checks, q), out, width, height, margin)
+                    T_base_cam = hard.turned_away(spec, checks.ee_points(q), out, width, height, margin)
                     if T_base_cam is None:
                         continue
                     spec = replace(spec, T_base_cam=T_base_cam)
@@ -51,12 +51,6 @@ def plan_segment(preset: Preset, robot, checks: MotionChecks, stream: int, seed:
     raise UserError(f"{robot.config}: no trajectory and camera met the preset's visibility rules{rules} after "
                     f"{MAX_TRAJECTORIES} x {MAX_CAMERAS} attempts; widen its camera distance or lower "
                     f"camera.min_visible")
-
-
-def _ee_points(robot, checks: MotionChecks, q: np.ndarray) -> np.ndarray:
-    """The end-effector's surface points in the base, per frame: (frames, points, 3)."""
-    T = robot.T_base_link(q)[robot.ee_root]
-    return np.einsum("fij,pj->fpi", T[:, :3, :3], checks.points) + T[:, None, :3, 3]
 
 
 def _with_hard_cases(rng, preset: Preset, robot, checks: MotionChecks, spec: SegmentSpec, in_view: np.ndarray,
