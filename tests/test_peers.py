@@ -1,5 +1,7 @@
 """The peers that run here: marker hand-eye calibration and PPF + ICP, on data with known answers."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -82,3 +84,18 @@ def test_ppf_finds_the_gripper_in_a_depth_scene(assets):
     assert explained > 0.5
     capped = PpfDetector(model, PpfOptions(scene_step=1, max_references=40))  # a larger scene, a larger step
     assert 0 < len(capped._votes(points, normals)) <= 40 < len(points)
+
+
+def test_ppf_votes_join_the_first_cluster_they_are_near():
+    # the clusters' order decides where a vote near two of them goes (Drost's greedy clustering as we run it):
+    # E lies nearer C but joins A, opened first; D is near A's place but turned 30 deg (2 angle bins: 24 deg)
+    det = SimpleNamespace(diameter=1.0, opts=PpfOptions(hypotheses=5))
+    turned = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    votes = [(8.0, make_T(np.eye(3), [0.15, 0, 0])), (10.0, make_T(np.eye(3), [0, 0, 0])),
+             (1.0, make_T(turned, [0.07, 0, 0])), (9.0, make_T(np.eye(3), [0.08, 0, 0])),
+             (2.0, make_T(np.eye(3), [0.09, 0, 0]))]
+    poses = PpfDetector._clusters(det, votes)
+    assert len(poses) == 3
+    np.testing.assert_allclose(poses[0][:3, 3], [(0.08 * 9 + 0.09 * 2) / 21, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(poses[1][:3, 3], [0.15, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(poses[2][:3, :3], turned, atol=1e-12)
