@@ -61,3 +61,46 @@ def test_depth_error_reports_the_statistics_of_a_known_error(tmp_path, capsys):
     assert main([str(tmp_path), "--out", str(out)]) == 0
     assert capsys.readouterr().out.splitlines() == [*EXPECTED, str(out)]
     assert out.stat().st_size > 5000
+
+
+def _write_robot_scene(root):
+    """One stereo frame of a 20 x 30 px robot (rows 5-24, columns 5-34): a pixel's distance to its outline is
+    1 + its distance in rows or columns to the nearest edge pixel, 1 to 10. Sensor errors by distance: 1 px
+    +9.0 mm (every even column of that ring without depth: 48 of its 96 pixels), 2-3 px +4.0 mm, 4-8 px
+    -1.0 mm, 9-10 px +0.5 mm."""
+    robot = np.zeros((H, W), bool)
+    robot[5:25, 5:35] = True
+    rows, cols = np.mgrid[0:H, 0:W]
+    dist = np.minimum(np.minimum(rows - 4, 25 - rows), np.minimum(cols - 4, 35 - cols))
+    error_mm = np.select([dist == 1, dist <= 3, dist <= 8], [9.0, 4.0, -1.0], 0.5)
+    depth = np.where(robot, GT_M + error_mm / 1000.0, GT_M + 0.5)
+    depth[robot & (dist == 1) & (cols % 2 == 0)] = 0.0
+    meta = SceneMeta(obj_id=2, arm="ur5e", end_effector="robotiq_2f85", joint_names=["j"], T_cam_base=np.eye(4),
+                     depth_sensor={"mode": "stereo", "profile": {}}, links=["link", "robotiq_2f85"])
+    link_ids = robot.astype(np.uint8)
+    link_ids[10:15, 10:15] = 2  # the end-effector: a part of the robot as any other
+    f = 100.0
+    writer = SceneWriter(Dataset(root).scene_dir(0), meta, [2, 4])
+    writer.write(Frame(im_id=0, rgb=np.zeros((H, W, 3), np.uint8), depth=depth, mask=link_ids == 2,
+                       mask_visib=link_ids == 2, K=np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]]),
+                       T_cam_ee=np.eye(4), joint_positions=np.zeros(1), T_base_ee=np.eye(4),
+                       depth_gt=np.full((H, W), GT_M), link_ids=link_ids))
+
+
+def test_robot_depth_error_by_distance_to_the_outline(tmp_path, capsys):
+    _write_robot_scene(tmp_path)
+    out = tmp_path / "h.png"
+    assert main([str(tmp_path), "--out", str(out), "--robot"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-3:] == ["robot pixels by distance to its outline: median error, |err| median, no depth",
+                          "0 ur5e+robotiq_2f85: 0-1.5 px +9.0 mm, 9.0 mm, 50%; 1.5-3.5 px +4.0 mm, 4.0 mm, 0%; "
+                          "3.5-8 px -1.0 mm, 1.0 mm, 0%; over 8 px +0.5 mm, 0.5 mm, 0%", str(out)]
+
+
+def test_robot_depth_error_needs_the_robot_parts(tmp_path, capsys):
+    small = np.zeros((H, W), bool)
+    small[10:20, 10:20] = True
+    _write_scene(tmp_path, 1, 4, "kinova_3f", np.full(100, -2.0), small)
+    assert main([str(tmp_path), "--out", str(tmp_path / "h.png"), "--robot"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no robot_mask_visib/" in err[0]
