@@ -76,6 +76,7 @@ bench: dataset
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette --silhouette robot
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette+depth
 	$(PY) benchmarks/estimator.py --dataset $(DATA) --refine silhouette+depth --silhouette robot
+	$(PY) benchmarks/estimator.py --dataset $(DATA) --masks none
 	$(PY) benchmarks/silhouette.py --dataset $(DATA)
 	$(PY) benchmarks/metrics.py
 
