@@ -22,26 +22,33 @@ from matplotlib.figure import Figure
 
 from eval.plots import save_figure
 from kernel.cli import run_command
-from kernel.dataset import Dataset
+from kernel.dataset import Dataset, Scene
 from kernel.errors import UserError
 
 EDGE_BANDS_PX = (1.5, 3.5, 8.0)  # --robot: pixels by distance to the robot's outline, (0, 1.5], (1.5, 3.5], ...
 
 
+def sensor_scenes(root: Path) -> list[Scene]:
+    """The data set's scenes, each rendered with a simulated sensor's depth beside the exact depth."""
+    scenes = Dataset(root).scenes()
+    if not scenes:
+        raise UserError(f"{root}: no scenes; give the root of a data set rendered with --depth stereo")
+    for scene in scenes:
+        if scene.meta.depth_sensor is None:
+            raise UserError(f"{scene.path}: exact depth only; render with --depth stereo to compare a sensor's depth")
+    return scenes
+
+
 def ee_depth_errors(root: Path) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Per end-effector: signed errors (m) where both depths exist, and the share of pixels with no sensor depth."""
     errors, holes = defaultdict(list), defaultdict(list)
-    for scene in Dataset(root).scenes():
-        if scene.meta.depth_sensor is None:
-            raise UserError(f"{scene.path}: exact depth only; render with --depth stereo to compare a sensor's depth")
+    for scene in sensor_scenes(root):
         for i in scene.im_ids:
             f = scene.frame(i)
             ee = f.mask_visib & (f.depth_gt > 0)
             both = ee & (f.depth > 0)
             errors[scene.meta.end_effector].append(f.depth[both] - f.depth_gt[both])
             holes[scene.meta.end_effector].append((ee.sum(), (ee & (f.depth == 0)).sum()))
-    if not errors:
-        raise UserError(f"{root}: no scenes; give the root of a data set rendered with --depth stereo")
     return ({ee: np.concatenate(e) for ee, e in errors.items()},
             {ee: sum(h for _, h in c) / max(1, sum(n for n, _ in c)) for ee, c in holes.items()})
 
@@ -51,9 +58,7 @@ def robot_depth_errors(root: Path) -> dict[tuple[int, str], list[tuple[np.ndarra
     visible pixels at that distance to its outline (px, Euclidean, to the nearest pixel off the robot), and
     the share of them with no sensor depth."""
     found = {}
-    for scene in Dataset(root).scenes():
-        if scene.meta.depth_sensor is None:
-            raise UserError(f"{scene.path}: exact depth only; render with --depth stereo to compare a sensor's depth")
+    for scene in sensor_scenes(root):
         errors, counts = [[] for _ in range(len(EDGE_BANDS_PX) + 1)], np.zeros((len(EDGE_BANDS_PX) + 1, 2))
         for i in scene.im_ids:
             f = scene.frame(i)
@@ -69,8 +74,6 @@ def robot_depth_errors(root: Path) -> dict[tuple[int, str], list[tuple[np.ndarra
                 errors[b].append(f.depth[both] - f.depth_gt[both])
                 counts[b] += here.sum(), (here & (f.depth == 0)).sum()
         found[(scene.scene_id, scene.config)] = [(np.concatenate(e), h / max(n, 1)) for e, (n, h) in zip(errors, counts)]
-    if not found:
-        raise UserError(f"{root}: no scenes; give the root of a data set rendered with --depth stereo")
     return found
 
 

@@ -87,13 +87,16 @@ def test_ppf_finds_the_gripper_in_a_depth_scene(assets):
 
 
 def test_ppf_votes_join_the_first_cluster_they_are_near():
-    # the clusters' order decides where a vote near two of them goes (Drost's greedy clustering as we run it):
-    # E lies nearer C but joins A, opened first; D is near A's place but turned 30 deg (2 angle bins: 24 deg)
+    # the clusters' order decides where a vote near two of them goes (Drost's greedy clustering as we run it),
+    # strongest vote first: B joins A; C, 0.15 from A (over a tenth of the diameter), opens its own; E lies
+    # nearer C but joins A, opened first; D lies near A and C but turned 30 deg (2 angle bins: 24 deg)
     det = SimpleNamespace(diameter=1.0, opts=PpfOptions(hypotheses=5))
     turned = Rotation.from_euler("z", 30, degrees=True).as_matrix()
-    votes = [(8.0, make_T(np.eye(3), [0.15, 0, 0])), (10.0, make_T(np.eye(3), [0, 0, 0])),
-             (1.0, make_T(turned, [0.07, 0, 0])), (9.0, make_T(np.eye(3), [0.08, 0, 0])),
-             (2.0, make_T(np.eye(3), [0.09, 0, 0]))]
+    votes = [(8.0, make_T(np.eye(3), [0.15, 0, 0])),  # C
+             (10.0, make_T(np.eye(3), [0, 0, 0])),  # A
+             (1.0, make_T(turned, [0.07, 0, 0])),  # D
+             (9.0, make_T(np.eye(3), [0.08, 0, 0])),  # B
+             (2.0, make_T(np.eye(3), [0.09, 0, 0]))]  # E
     poses = PpfDetector._clusters(det, votes)
     assert len(poses) == 3
     np.testing.assert_allclose(poses[0][:3, 3], [(0.08 * 9 + 0.09 * 2) / 21, 0, 0], atol=1e-12)
