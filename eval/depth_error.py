@@ -21,6 +21,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from eval.plots import save_figure
+from kernel.bop import Frame
 from kernel.cli import run_command
 from kernel.dataset import Dataset, Scene
 from kernel.errors import UserError
@@ -39,16 +40,23 @@ def sensor_scenes(root: Path) -> list[Scene]:
     return scenes
 
 
+def _compared(f: Frame, region: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """On `region`'s pixels with exact depth: the signed errors (m) where the sensor has depth, how many
+    pixels, and how many of them without sensor depth."""
+    here = region & (f.depth_gt > 0)
+    both = here & (f.depth > 0)
+    return f.depth[both] - f.depth_gt[both], int(here.sum()), int((here & (f.depth == 0)).sum())
+
+
 def ee_depth_errors(root: Path) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Per end-effector: signed errors (m) where both depths exist, and the share of pixels with no sensor depth."""
     errors, holes = defaultdict(list), defaultdict(list)
     for scene in sensor_scenes(root):
         for i in scene.im_ids:
             f = scene.frame(i)
-            ee = f.mask_visib & (f.depth_gt > 0)
-            both = ee & (f.depth > 0)
-            errors[scene.meta.end_effector].append(f.depth[both] - f.depth_gt[both])
-            holes[scene.meta.end_effector].append((ee.sum(), (ee & (f.depth == 0)).sum()))
+            e, n, h = _compared(f, f.mask_visib)
+            errors[scene.meta.end_effector].append(e)
+            holes[scene.meta.end_effector].append((n, h))
     return ({ee: np.concatenate(e) for ee, e in errors.items()},
             {ee: sum(h for _, h in c) / max(1, sum(n for n, _ in c)) for ee, c in holes.items()})
 
@@ -67,19 +75,21 @@ def robot_depth_errors(root: Path) -> dict[tuple[int, str], list[tuple[np.ndarra
             robot = f.link_ids > 0
             band = np.digitize(cv2.distanceTransform(robot.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE),
                                EDGE_BANDS_PX, right=True)
-            seen = robot & (f.depth_gt > 0)
             for b in range(len(errors)):
-                here = seen & (band == b)
-                both = here & (f.depth > 0)
-                errors[b].append(f.depth[both] - f.depth_gt[both])
-                counts[b] += here.sum(), (here & (f.depth == 0)).sum()
+                e, n, h = _compared(f, robot & (band == b))
+                errors[b].append(e)
+                counts[b] += n, h
         found[(scene.scene_id, scene.config)] = [(np.concatenate(e), h / max(n, 1)) for e, (n, h) in zip(errors, counts)]
     return found
 
 
-def _band_names() -> list[str]:
+def _bands_line(bands: list[tuple[np.ndarray, float]]) -> str:
+    """Each band's median error, median |error| (mm) and share without depth, named by its distances."""
     edges = (0.0, *EDGE_BANDS_PX)
-    return [f"{a:g}-{b:g} px" for a, b in zip(edges, edges[1:])] + [f"over {EDGE_BANDS_PX[-1]:g} px"]
+    names = [f"{a:g}-{b:g} px" for a, b in zip(edges, edges[1:])] + [f"over {EDGE_BANDS_PX[-1]:g} px"]
+    return "; ".join(f"{name} " + (f"{np.median(e) * 1000:+.1f} mm, {np.median(np.abs(e)) * 1000:.1f} mm, " if len(e)
+                                   else "no pixels with depth, ") + f"{100 * h:.0f}%"
+                     for name, (e, h) in zip(names, bands))
 
 
 def histogram(errors: dict[str, np.ndarray], path: Path, limit_mm: float = 60.0) -> None:
@@ -115,11 +125,8 @@ def main(argv=None) -> int:
                          f"10-90% [{q[0]:+.1f}, {q[2]:+.1f}] mm, no depth on {100 * holes[ee]:.1f}% of its pixels")
         if args.robot:
             lines.append("robot pixels by distance to its outline: median error, |err| median, no depth")
-            for (scene_id, config), bands in sorted(robot_depth_errors(args.dataset).items()):
-                lines.append(f"{scene_id} {config}: " + "; ".join(
-                    f"{name} " + (f"{np.median(e) * 1000:+.1f} mm, {np.median(np.abs(e)) * 1000:.1f} mm, " if len(e)
-                                  else "no pixels with depth, ") + f"{100 * h:.0f}%"
-                    for name, (e, h) in zip(_band_names(), bands)))
+            lines += [f"{scene_id} {config}: {_bands_line(bands)}"
+                      for (scene_id, config), bands in sorted(robot_depth_errors(args.dataset).items())]
         return "\n".join(lines) + f"\n{args.out}"
 
     return run_command(action)
