@@ -2,7 +2,8 @@
 
 Path-traced IR cost 8-12x an exact-depth frame. Here each IR imager's G-buffer (depth, world normal,
 diffuse and glossy colour and roughness of one pixel-centre ray, rendered by syneepose/blender/stereo.py)
-and a depth map seen from the projector (its shadow test) give each pixel's light in closed form:
+and a depth map seen from the projector (its shadow test: splatted from the two G-buffers by
+`projector_depth`, or rendered) give each pixel's light in closed form:
 
 - the projector's dots averaged over the pixel's footprint on the surface's tangent plane (a summed-area
   table of the pattern: a dot lands anywhere within a pixel and moves its intensity continuously, which the
@@ -27,11 +28,11 @@ import cv2
 import numba
 import numpy as np
 
-from kernel.camera import point_map, project
 from kernel.transforms import inv_T
 from syneepose.colour import LUMINANCE, linear_to_srgb
 
 MAX_FOOTPRINT = 12.0  # pattern pixels a side: grazing pixels average at most this much of the pattern
+MAX_SPLAT = 12.0  # projector-map pixels a side: what a grazing imager pixel covers of the map at most
 SHADOW_TOLERANCE = (0.002, 0.01)  # metres + fraction of depth a point may lie behind the projector's depth map
 EXPOSURE_PERCENTILE = 99.0
 
@@ -129,30 +130,129 @@ class Lighting:
 
 
 def dot_share(g: GBuffer, projector: Projector, points_cam: np.ndarray) -> np.ndarray:
-    """The mean of the pattern over each pixel's footprint: the pixel's four corner rays met with the tangent
-    plane of its centre's surface (`points_cam`: the imager's point map), taken to the pattern, and the
-    pattern averaged over their bounding box (compiled, one pass over the pixels: 13x faster than numpy's
-    arrays of the four corners)."""
+    """The mean of the pattern over each pixel's footprint (`points_cam`: the imager's point map); the
+    per-pixel rule `radiance` applies, on its own."""
     T_proj_cam = inv_T(projector.T_base_proj) @ g.T_base_cam
     normals_cam = g.normal @ g.T_base_cam[:3, :3]
-    out = np.empty(g.depth.shape)
     pattern = projector.pattern
-    _footprint_means(*(np.ascontiguousarray(a, dtype=np.float64) for a in (g.depth, normals_cam, points_cam, g.K,
-                                                                            T_proj_cam)),
-                     pattern.table, pattern.size, pattern.scale, MAX_FOOTPRINT, out)
+    out = np.empty(g.depth.shape)
+    _footprint_means(*_f64(g.depth, normals_cam, points_cam, g.K, T_proj_cam), pattern.table, pattern.size,
+                     pattern.scale, MAX_FOOTPRINT, out)
     return out
 
 
 @numba.njit(cache=True, nogil=True)
 def _footprint_means(depth, normals, points, K, T, table, size, scale, max_footprint, out):
-    """dot_share per pixel; a point in the projector frame lands at pattern column, row = size (0.5 + scale
-    (x, y) / z) with pixel edges at integers, as the path-traced spot light's texture lookup has it
-    (syneepose/blender/stereo.py)."""
     for v in range(depth.shape[0]):
         for u in range(depth.shape[1]):
-            nx, ny, nz = normals[v, u, 0], normals[v, u, 1], normals[v, u, 2]
-            offset = nx * points[v, u, 0] + ny * points[v, u, 1] + nz * points[v, u, 2]
+            out[v, u] = _footprint_mean(u, v, depth[v, u], normals[v, u, 0], normals[v, u, 1], normals[v, u, 2],
+                                        points[v, u, 0], points[v, u, 1], points[v, u, 2], K, T, table, size,
+                                        scale, max_footprint)
+
+
+@numba.njit(cache=True, nogil=True)
+def _footprint_mean(u, v, d, nx, ny, nz, x0, y0, z0, K, T, table, size, scale, max_footprint):
+    """dot_share of pixel (u, v) (its camera point and normal): the pixel's four corner rays met with the
+    tangent plane of its centre's surface, taken to the pattern, and the pattern averaged over their bounding
+    box. A point in the projector frame lands at pattern column, row = size (0.5 + scale (x, y) / z) with
+    pixel edges at integers, as the path-traced spot light's texture lookup has it
+    (syneepose/blender/stereo.py)."""
+    offset = nx * x0 + ny * y0 + nz * z0
+    lo_x = lo_y = np.inf
+    hi_x = hi_y = -np.inf
+    for corner in range(4):
+        rx = (u + (corner % 2 - 0.5) - K[0, 2]) / K[0, 0]
+        ry = (v + (corner // 2 - 0.5) - K[1, 2]) / K[1, 1]
+        facing = nx * rx + ny * ry + nz
+        t = offset / facing if abs(facing) > 1e-6 else d
+        t = min(max(t, 0.5 * d), 2.0 * d)  # grazing: the footprint stays near the pixel's own depth
+        x, y, z = rx * t, ry * t, t
+        px = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
+        py = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
+        pz = max(T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3], 1e-9)
+        cu, cv = size * (0.5 + scale * px / pz), size * (0.5 + scale * py / pz)
+        lo_x, hi_x = min(lo_x, cu), max(hi_x, cu)
+        lo_y, hi_y = min(lo_y, cv), max(hi_y, cv)
+    mid_x, mid_y = (lo_x + hi_x) / 2, (lo_y + hi_y) / 2
+    half_x = min((hi_x - lo_x) / 2, max_footprint / 2)
+    half_y = min((hi_y - lo_y) / 2, max_footprint / 2)
+    return box_mean(table, size, mid_x - half_x, mid_y - half_y, mid_x + half_x, mid_y + half_y)
+
+
+def projector_sees(projector: Projector, points: np.ndarray) -> np.ndarray:
+    """Points (base frame) the projector reaches; the per-pixel rule `radiance` applies, on its own."""
+    out = np.empty(points.shape[:-1], np.bool_)
+    flat = out.reshape(-1)
+    _sees_all(*_f64(points.reshape(-1, 3), inv_T(projector.T_base_proj), projector.shadow_depth,
+                    projector.shadow_K), flat)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _sees_all(points, T, shadow, K, out):
+    for i in range(points.shape[0]):
+        out[i] = _sees(points[i, 0], points[i, 1], points[i, 2], T, shadow, K)
+
+
+@numba.njit(cache=True, nogil=True)
+def _sees(x, y, z, T, shadow, K):
+    """Whether the projector (T: base to projector frame) reaches a point: in front of it and not behind the
+    surface its depth map holds there (the largest of the 2 x 2 map pixels around the point, so a shadow's
+    edge does not flicker; no depth counts as infinitely far)."""
+    lx = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
+    ly = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
+    lz = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+    if lz <= 0:
+        return False
+    u = K[0, 0] * lx / max(lz, 1e-6) + K[0, 2]
+    v = K[1, 1] * ly / max(lz, 1e-6) + K[1, 2]
+    h, w = shadow.shape
+    if u < -0.5 or u > w - 0.5 or v < -0.5 or v > h - 0.5:
+        return True
+    x0 = min(max(int(np.floor(u)), 0), w - 2)
+    y0 = min(max(int(np.floor(v)), 0), h - 2)
+    nearest = 0.0
+    for dy in range(2):
+        for dx in range(2):
+            d = shadow[y0 + dy, x0 + dx]
+            nearest = max(nearest, d if d > 0 else np.inf)
+    return lz <= nearest * (1 + SHADOW_TOLERANCE[1]) + SHADOW_TOLERANCE[0]
+
+
+def projector_depth(views: list[GBuffer], T_base_proj: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The depth map the projector's shadow test reads (metres along its axis, 0 where nothing is seen),
+    splatted from the imagers' G-buffers instead of rendered from the projector: each imager pixel's footprint
+    on its tangent plane (as `dot_share` takes it) covers the map's pixel centres inside its bounding box at
+    its centre's depth, the nearest surface winning. The projector sits between the imagers, so what it sees
+    of a convex surface one of them sees too; a surface neither sees (a slot open only to the middle, the
+    strip beyond both imagers' fields of view) casts no shadow."""
+    out = np.full(shape, np.inf)
+    T_proj_base = inv_T(T_base_proj)
+    for g in views:
+        _splat(*_f64(g.depth, g.normal, g.T_base_cam, g.K, T_proj_base @ g.T_base_cam, K), MAX_SPLAT, out)
+    return np.where(np.isfinite(out), out, 0.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _splat(depth, normals, T_base_cam, K, T, K_map, max_size, out):
+    h, w = out.shape
+    R = T_base_cam[:3, :3]
+    for v in range(depth.shape[0]):
+        for u in range(depth.shape[1]):
             d = depth[v, u]
+            if d <= 0:
+                continue
+            bx, by, bz = normals[v, u, 0], normals[v, u, 1], normals[v, u, 2]
+            nx = R[0, 0] * bx + R[1, 0] * by + R[2, 0] * bz  # the normal in the camera frame
+            ny = R[0, 1] * bx + R[1, 1] * by + R[2, 1] * bz
+            nz = R[0, 2] * bx + R[1, 2] * by + R[2, 2] * bz
+            cx, cy = (u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d
+            z = T[2, 0] * cx + T[2, 1] * cy + T[2, 2] * d + T[2, 3]
+            if z <= 0:
+                continue
+            mu = K_map[0, 0] * (T[0, 0] * cx + T[0, 1] * cy + T[0, 2] * d + T[0, 3]) / z + K_map[0, 2]
+            mv = K_map[1, 1] * (T[1, 0] * cx + T[1, 1] * cy + T[1, 2] * d + T[1, 3]) / z + K_map[1, 2]
+            offset = nx * cx + ny * cy + nz * d
             lo_x = lo_y = np.inf
             hi_x = hi_y = -np.inf
             for corner in range(4):
@@ -160,35 +260,23 @@ def _footprint_means(depth, normals, points, K, T, table, size, scale, max_footp
                 ry = (v + (corner // 2 - 0.5) - K[1, 2]) / K[1, 1]
                 facing = nx * rx + ny * ry + nz
                 t = offset / facing if abs(facing) > 1e-6 else d
-                t = min(max(t, 0.5 * d), 2.0 * d)  # grazing: the footprint stays near the pixel's own depth
-                x, y, z = rx * t, ry * t, t
-                px = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
-                py = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
-                pz = max(T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3], 1e-9)
-                cu, cv = size * (0.5 + scale * px / pz), size * (0.5 + scale * py / pz)
+                t = min(max(t, 0.5 * d), 2.0 * d)
+                x, y = rx * t, ry * t
+                pz = max(T[2, 0] * x + T[2, 1] * y + T[2, 2] * t + T[2, 3], 1e-9)
+                cu = K_map[0, 0] * (T[0, 0] * x + T[0, 1] * y + T[0, 2] * t + T[0, 3]) / pz + K_map[0, 2]
+                cv = K_map[1, 1] * (T[1, 0] * x + T[1, 1] * y + T[1, 2] * t + T[1, 3]) / pz + K_map[1, 2]
                 lo_x, hi_x = min(lo_x, cu), max(hi_x, cu)
                 lo_y, hi_y = min(lo_y, cv), max(hi_y, cv)
-            mid_x, mid_y = (lo_x + hi_x) / 2, (lo_y + hi_y) / 2
-            half_x = min((hi_x - lo_x) / 2, max_footprint / 2)
-            half_y = min((hi_y - lo_y) / 2, max_footprint / 2)
-            out[v, u] = box_mean(table, size, mid_x - half_x, mid_y - half_y, mid_x + half_x, mid_y + half_y)
-
-
-def projector_sees(projector: Projector, points: np.ndarray) -> np.ndarray:
-    """Points the projector reaches: in front of it and not behind the surface its depth map holds there
-    (the largest of the 2 x 2 map pixels around the point, so a shadow's edge does not flicker)."""
-    T = inv_T(projector.T_base_proj)
-    local = points @ T[:3, :3].T + T[:3, 3]
-    z = local[..., 2]
-    uv = project(local.reshape(-1, 3), projector.shadow_K, min_z=1e-6).reshape(*z.shape, 2)
-    h, w = projector.shadow_depth.shape
-    x0 = np.clip(np.floor(uv[..., 0]).astype(int), 0, w - 2)
-    y0 = np.clip(np.floor(uv[..., 1]).astype(int), 0, h - 2)
-    d = projector.shadow_depth
-    d = np.where(d > 0, d, np.inf)
-    nearest = np.maximum.reduce([d[y0, x0], d[y0, x0 + 1], d[y0 + 1, x0], d[y0 + 1, x0 + 1]])
-    inside = (uv[..., 0] >= -0.5) & (uv[..., 0] <= w - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= h - 0.5)
-    return (z > 0) & (~inside | (z <= nearest * (1 + SHADOW_TOLERANCE[1]) + SHADOW_TOLERANCE[0]))
+            lo_x, hi_x = max(lo_x, mu - max_size / 2), min(hi_x, mu + max_size / 2)
+            lo_y, hi_y = max(lo_y, mv - max_size / 2), min(hi_y, mv + max_size / 2)
+            x0 = min(int(np.ceil(lo_x)), int(np.floor(mu + 0.5)))
+            x1 = max(int(np.floor(hi_x)), int(np.floor(mu + 0.5)))
+            y0 = min(int(np.ceil(lo_y)), int(np.floor(mv + 0.5)))
+            y1 = max(int(np.floor(hi_y)), int(np.floor(mv + 0.5)))
+            for y in range(max(y0, 0), min(y1, h - 1) + 1):
+                for x in range(max(x0, 0), min(x1, w - 1) + 1):
+                    if z < out[y, x]:
+                        out[y, x] = z
 
 
 @numba.njit(cache=True, nogil=True)
@@ -229,24 +317,36 @@ def _irradiance(px, py, pz, nx, ny, nz, positions, intensities, facings, suns, s
 
 
 @numba.njit(cache=True, nogil=True)
-def _shade(depth, points, normals, albedo, gloss, roughness, share, sees, projector, intensity, eye,
-           positions, intensities, facings, suns, sun_irradiance, world, out):
-    """radiance per pixel: the dots by the Lambertian and GGX lobes, the ambient lights, the world."""
+def _shade(depth, normals, albedo, gloss, roughness, K, T_base_cam, T_proj_cam, T_proj_base, projector, table, size,
+           scale, max_footprint, shadow, shadow_K, intensity, positions, intensities, facings, suns, sun_irradiance,
+           world, out):
+    """radiance per pixel, in one pass: the pixel's point and normal in the camera and the base frame, the
+    dots over its footprint by the Lambertian and GGX lobes where the projector sees it, the ambient lights,
+    the world."""
+    R, t = T_base_cam[:3, :3], T_base_cam[:3, 3]
     for v in range(depth.shape[0]):
         for u in range(depth.shape[1]):
-            if depth[v, u] <= 0:
+            d = depth[v, u]
+            if d <= 0:
                 out[v, u] = world
                 continue
-            px, py, pz = points[v, u, 0], points[v, u, 1], points[v, u, 2]
+            cx, cy = (u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d
+            px = R[0, 0] * cx + R[0, 1] * cy + R[0, 2] * d + t[0]
+            py = R[1, 0] * cx + R[1, 1] * cy + R[1, 2] * d + t[1]
+            pz = R[2, 0] * cx + R[2, 1] * cy + R[2, 2] * d + t[2]
             nx, ny, nz = normals[v, u, 0], normals[v, u, 1], normals[v, u, 2]
             lx, ly, lz = projector[0] - px, projector[1] - py, projector[2] - pz
             r2 = max(lx * lx + ly * ly + lz * lz, 1e-6)
             r = np.sqrt(r2)
             lx, ly, lz = lx / r, ly / r, lz / r
             dots = 0.0
-            if sees[v, u]:
-                dots = intensity * share[v, u] * max(nx * lx + ny * ly + nz * lz, 0.0) / r2
-            ex, ey, ez = eye[0] - px, eye[1] - py, eye[2] - pz
+            if _sees(px, py, pz, T_proj_base, shadow, shadow_K):
+                share = _footprint_mean(u, v, d, R[0, 0] * nx + R[1, 0] * ny + R[2, 0] * nz,
+                                        R[0, 1] * nx + R[1, 1] * ny + R[2, 1] * nz,
+                                        R[0, 2] * nx + R[1, 2] * ny + R[2, 2] * nz, cx, cy, d, K, T_proj_cam,
+                                        table, size, scale, max_footprint)
+                dots = intensity * share * max(nx * lx + ny * ly + nz * lz, 0.0) / r2
+            ex, ey, ez = t[0] - px, t[1] - py, t[2] - pz
             length = max(np.sqrt(ex * ex + ey * ey + ez * ez), 1e-9)
             ex, ey, ez = ex / length, ey / length, ez / length
             specular = gloss[v, u] * ggx_specular(nx, ny, nz, lx, ly, lz, ex, ey, ez, roughness[v, u])
@@ -256,20 +356,21 @@ def _shade(depth, points, normals, albedo, gloss, roughness, share, sees, projec
 
 def radiance(g: GBuffer, projector: Projector, lighting: Lighting) -> np.ndarray:
     """Radiance (W / (m^2 sr), luminance) each pixel of the imager receives; where the ray hits nothing,
-    the world's."""
-    points_cam = point_map(g.depth, g.K)
-    points = points_cam @ g.T_base_cam[:3, :3].T + g.T_base_cam[:3, 3]
-    share = dot_share(g, projector, points_cam)
-    sees = projector_sees(projector, points)
+    the world's. One compiled pass over the pixels (numpy's arrays of points, normals and footprints cost
+    twice the shading itself)."""
+    T_proj_base = inv_T(projector.T_base_proj)
+    pattern = projector.pattern
     out = np.empty(g.depth.shape)
-    arrays = (g.depth, points, g.normal, g.albedo, g.gloss, g.roughness, share)
-    _shade(*(np.ascontiguousarray(a, dtype=np.float64) for a in arrays), np.ascontiguousarray(sees),
-           projector.T_base_proj[:3, 3].astype(np.float64), float(projector.intensity),
-           g.T_base_cam[:3, 3].astype(np.float64),
-           *(np.ascontiguousarray(a, dtype=np.float64) for a in (
-               lighting.positions, lighting.intensities, lighting.facings, lighting.suns, lighting.sun_irradiance)),
+    _shade(*_f64(g.depth, g.normal, g.albedo, g.gloss, g.roughness, g.K, g.T_base_cam, T_proj_base @ g.T_base_cam,
+                 T_proj_base, projector.T_base_proj[:3, 3]), pattern.table, pattern.size, pattern.scale, MAX_FOOTPRINT,
+           *_f64(projector.shadow_depth, projector.shadow_K), float(projector.intensity),
+           *_f64(lighting.positions, lighting.intensities, lighting.facings, lighting.suns, lighting.sun_irradiance),
            float(lighting.world_radiance), out)
     return out
+
+
+def _f64(*arrays):
+    return tuple(np.ascontiguousarray(a, dtype=np.float64) for a in arrays)
 
 
 def expose(left: np.ndarray, right: np.ndarray, psf_sigma: float, white_level: float, full_well: float,

@@ -72,6 +72,9 @@ class _Projector(Section):
     hfov_deg: float = Field(gt=0.0, lt=180.0)
     dots_per_ir_pixel: float = Field(gt=0.0, le=10.0)
     power: float = Field(ge=0.0)  # W
+    # the shaded IR's shadow test: a depth map splatted from the imagers' G-buffers, or rendered from the
+    # projector (one more Cycles call a frame; profiles before the key had it)
+    shadow: Literal["splatted", "rendered"] = "rendered"
 
 
 class _Imager(Section):  # the shaded IR images' blur, exposure and noise (syneepose/ir_shading.expose)

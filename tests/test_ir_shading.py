@@ -7,7 +7,7 @@ from kernel.camera import point_map
 from kernel.transforms import make_T
 from syneepose.colour import linear_to_srgb, srgb_to_linear
 from syneepose.ir_shading import (DotPattern, GBuffer, Lighting, Projector, box_mean, dot_share, expose,
-                                  projector_sees, radiance)
+                                  projector_depth, projector_sees, radiance)
 from syneepose.scene.spec import Light
 
 
@@ -104,3 +104,37 @@ def test_exposure_is_shared_by_both_images_and_the_noise_is_seeded():
     noisy = [expose(left, right, 0.7, 0.8, 175.0, 1.0, np.random.default_rng([3, f])) for f in (0, 0, 1)]
     np.testing.assert_array_equal(noisy[0][0], noisy[1][0])
     assert (noisy[0][0] != noisy[2][0]).mean() > 0.5
+
+
+def test_the_projector_depth_splatted_from_two_imagers_matches_what_the_projector_sees():
+    """A wall 2 m away and a plate 1 m away in front of its middle, seen by two imagers 50 mm apart with the
+    projector between them: the splatted map holds the plate's and the wall's depth where the projector sees
+    each (on the axis, 2 px off the plate's edges), and lights the wall pixels the rendered map would light."""
+    w, h, f = 80, 60, 60.0
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+
+    def scene_depth(T_base_cam, Km, size):
+        """Depth along the axis of a camera looking down +z from T_base_cam's origin (rotation identity)."""
+        u, v = np.meshgrid(np.arange(size[0], dtype=float), np.arange(size[1], dtype=float))
+        rx, ry = (u - Km[0, 2]) / Km[0, 0], (v - Km[1, 2]) / Km[1, 1]
+        ox = T_base_cam[0, 3]
+        on_plate = (np.abs(ox + rx * 1.0) <= 0.15) & (np.abs(ry * 1.0) <= 0.15)
+        return np.where(on_plate, 1.0, 2.0)
+
+    views = []
+    for x in (0.0, 0.05):
+        T = make_T(t=[x, 0.0, 0.0])
+        normal = np.broadcast_to([0.0, 0.0, -1.0], (h, w, 3)).copy()
+        views.append(GBuffer(scene_depth(T, K, (w, h)), normal, np.full((h, w), 0.5), np.zeros((h, w)),
+                             np.full((h, w), 0.4), K, T))
+    T_proj = make_T(t=[0.025, 0.0, 0.0])
+    splat = projector_depth(views, T_proj, K, (h, w))
+    truth = scene_depth(T_proj, K, (w, h))
+    covered = splat > 0
+    assert covered[:, 2:-2].all()  # the two imagers' splats leave no hole inside the field both see
+    np.testing.assert_allclose(splat[covered], truth[covered])
+    for g in views:
+        points = point_map(g.depth, g.K) + g.T_base_cam[:3, 3]
+        lit = projector_sees(Projector(T_proj, None, 1.0, splat, K), points)
+        np.testing.assert_array_equal(lit, projector_sees(Projector(T_proj, None, 1.0, truth, K), points))
+        assert 0 < (~lit).sum() < 0.05 * lit.size  # the plate's thin shadow on the wall, beside its edge

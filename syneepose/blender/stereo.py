@@ -1,9 +1,10 @@
 """The IR half of the active-stereo sensor in Blender: two IR imagers on the RGB camera's x axis and the
 random-dot projector between them.
 
-`shaded` (the profile's default) renders G-buffers only - depth, normal and diffuse albedo of one
-pixel-centre ray per pixel from each imager, and depth from the projector for its shadow test - and
-shades them in closed form (syneepose/ir_shading.py). `pathtraced` path-traces the IR pair: the scene with
+`shaded` (the profile's default) renders G-buffers only - depth, normal, diffuse and glossy colour and
+roughness of one pixel-centre ray per pixel from each imager (and depth from the projector for its shadow
+test when the profile's `projector.shadow` is `rendered`; `splatted` takes it from the two imagers' G-buffers)
+- and shades them in closed form (syneepose/ir_shading.py). `pathtraced` path-traces the IR pair: the scene with
 its lights and world dimmed to the profile's `ambient` share and a spot light projecting the pattern (a
 texture looked up by the light's ray direction), hidden in the RGB render as the RGB imager's IR-cut filter
 would have it. Materials keep their visible reflectance either way (an approximation: real IR albedo
@@ -21,7 +22,7 @@ from kernel.transforms import make_T
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import read_passes
 from syneepose.colour import LUMINANCE
-from syneepose.ir_shading import DotPattern, GBuffer, Lighting, Projector, expose, radiance
+from syneepose.ir_shading import DotPattern, GBuffer, Lighting, Projector, expose, projector_depth, radiance
 from syneepose.stereo import SensorProfile, dot_pattern, ir_to_gray
 
 
@@ -129,15 +130,20 @@ class IrRig:
         T_base_right = T_base_left @ self.profile.T_irleft_irright
         if self.profile.ir_render == "pathtraced":
             return self._pathtraced(T_base_left, T_base_right, workdir)
+        T_base_projector = T_base_left @ self.T_irleft_projector
+        rendered = self.profile.projector["shadow"] == "rendered"
         saved = self._gbuffer_mode()
         try:
-            left, right, seen = (self._gbuffer(T, K, workdir) for T, K in (
+            views = [self._gbuffer(T, K, workdir) for T, K in (
                 (T_base_left, self.K_ir), (T_base_right, self.K_ir),
-                (T_base_left @ self.T_irleft_projector, self.K_projector)))
+                *([(T_base_projector, self.K_projector)] if rendered else []))]
         finally:
             self._restore(saved)
-        projector = Projector(T_base_left @ self.T_irleft_projector, self.dots,
-                              self.profile.projector["power"] / (4 * np.pi), seen.depth, self.K_projector)
+        left, right = views[:2]
+        shadow = (views[2].depth if rendered else
+                  projector_depth([left, right], T_base_projector, self.K_projector, self.ir_size[::-1]))
+        projector = Projector(T_base_projector, self.dots, self.profile.projector["power"] / (4 * np.pi), shadow,
+                              self.K_projector)
         imager = self.profile.imager
         return expose(radiance(left, projector, self.lighting), radiance(right, projector, self.lighting),
                       imager["psf_sigma"], imager["white_level"], imager["full_well"], imager["read_noise"],
@@ -165,9 +171,9 @@ class IrRig:
 
     def _gbuffer_mode(self) -> dict:
         """One pixel-centre ray per pixel, no light: what the G-buffer passes need and nothing else. The
-        three calls keep Cycles' session between them (persistent data: they differ only in the camera;
-        their passes are byte-identical either way) and write their temporary EXR uncompressed, together
-        about 0.3 s of a frame's pair (docs/syneepose.md, "Sensor-like depth")."""
+        calls of a frame keep Cycles' session between them (persistent data: they differ only in the camera;
+        their passes are byte-identical either way) and write their temporary EXR uncompressed, which saved
+        about 0.3 s of a frame's three calls (docs/syneepose.md, "Sensor-like depth")."""
         scene = bpy.context.scene
         main = scene.view_layers[bscene.MAIN]
         background = scene.world.node_tree.nodes["Background"].inputs["Strength"]
