@@ -13,6 +13,7 @@ differs).
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import bpy
@@ -145,8 +146,9 @@ class IrRig:
         projector = Projector(T_base_projector, self.dots, self.profile.projector["power"] / (4 * np.pi), shadow,
                               self.K_projector)
         imager = self.profile.imager
-        return expose(radiance(left, projector, self.lighting), radiance(right, projector, self.lighting),
-                      imager["psf_sigma"], imager["white_level"], imager["full_well"], imager["read_noise"],
+        with ThreadPoolExecutor(2) as pool:  # the compiled shading releases the GIL: one imager a core
+            shaded = list(pool.map(lambda g: radiance(g, projector, self.lighting), (left, right)))
+        return expose(*shaded, imager["psf_sigma"], imager["white_level"], imager["full_well"], imager["read_noise"],
                       np.random.default_rng([self.seed, frame]))
 
     def _aim(self, T_base_cam: np.ndarray, K: np.ndarray) -> None:
