@@ -142,6 +142,32 @@ def dot_share(g: GBuffer, projector: Projector, points_cam: np.ndarray) -> np.nd
 
 
 @numba.njit(cache=True, nogil=True)
+def _moved(T, x, y, z):
+    """A point moved by a 4 x 4 transform."""
+    return (T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3], T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3],
+            T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3])
+
+
+@numba.njit(cache=True, nogil=True)
+def _rotated_back(R, x, y, z):
+    """A direction moved by R's transpose (a base-frame normal into the camera frame, R = T_base_cam's)."""
+    return (R[0, 0] * x + R[1, 0] * y + R[2, 0] * z, R[0, 1] * x + R[1, 1] * y + R[2, 1] * z,
+            R[0, 2] * x + R[1, 2] * y + R[2, 2] * z)
+
+
+@numba.njit(cache=True, nogil=True)
+def _corner(u, v, corner, d, nx, ny, nz, offset, K):
+    """Where corner `corner` (0-3) of pixel (u, v)'s ray meets the tangent plane n . p = offset of its centre's
+    surface (camera frame, depth d at the centre)."""
+    rx = (u + (corner % 2 - 0.5) - K[0, 2]) / K[0, 0]
+    ry = (v + (corner // 2 - 0.5) - K[1, 2]) / K[1, 1]
+    facing = nx * rx + ny * ry + nz
+    t = offset / facing if abs(facing) > 1e-6 else d
+    t = min(max(t, 0.5 * d), 2.0 * d)  # grazing: the footprint stays near the pixel's own depth
+    return rx * t, ry * t, t
+
+
+@numba.njit(cache=True, nogil=True)
 def _footprint_means(depth, normals, points, K, T, table, size, scale, max_footprint, out):
     for v in range(depth.shape[0]):
         for u in range(depth.shape[1]):
@@ -161,15 +187,8 @@ def _footprint_mean(u, v, d, nx, ny, nz, x0, y0, z0, K, T, table, size, scale, m
     lo_x = lo_y = np.inf
     hi_x = hi_y = -np.inf
     for corner in range(4):
-        rx = (u + (corner % 2 - 0.5) - K[0, 2]) / K[0, 0]
-        ry = (v + (corner // 2 - 0.5) - K[1, 2]) / K[1, 1]
-        facing = nx * rx + ny * ry + nz
-        t = offset / facing if abs(facing) > 1e-6 else d
-        t = min(max(t, 0.5 * d), 2.0 * d)  # grazing: the footprint stays near the pixel's own depth
-        x, y, z = rx * t, ry * t, t
-        px = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
-        py = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
-        pz = max(T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3], 1e-9)
+        px, py, pz = _moved(T, *_corner(u, v, corner, d, nx, ny, nz, offset, K))
+        pz = max(pz, 1e-9)
         cu, cv = size * (0.5 + scale * px / pz), size * (0.5 + scale * py / pz)
         lo_x, hi_x = min(lo_x, cu), max(hi_x, cu)
         lo_y, hi_y = min(lo_y, cv), max(hi_y, cv)
@@ -199,9 +218,7 @@ def _sees(x, y, z, T, shadow, K):
     """Whether the projector (T: base to projector frame) reaches a point: in front of it and not behind the
     surface its depth map holds there (the largest of the 2 x 2 map pixels around the point, so a shadow's
     edge does not flicker; no depth counts as infinitely far)."""
-    lx = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
-    ly = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
-    lz = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+    lx, ly, lz = _moved(T, x, y, z)
     if lz <= 0:
         return False
     u = K[0, 0] * lx / max(lz, 1e-6) + K[0, 2]
@@ -242,29 +259,19 @@ def _splat(depth, normals, T_base_cam, K, T, K_map, max_size, out):
             d = depth[v, u]
             if d <= 0:
                 continue
-            bx, by, bz = normals[v, u, 0], normals[v, u, 1], normals[v, u, 2]
-            nx = R[0, 0] * bx + R[1, 0] * by + R[2, 0] * bz  # the normal in the camera frame
-            ny = R[0, 1] * bx + R[1, 1] * by + R[2, 1] * bz
-            nz = R[0, 2] * bx + R[1, 2] * by + R[2, 2] * bz
+            nx, ny, nz = _rotated_back(R, normals[v, u, 0], normals[v, u, 1], normals[v, u, 2])
             cx, cy = (u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d
-            z = T[2, 0] * cx + T[2, 1] * cy + T[2, 2] * d + T[2, 3]
+            px, py, z = _moved(T, cx, cy, d)
             if z <= 0:
                 continue
-            mu = K_map[0, 0] * (T[0, 0] * cx + T[0, 1] * cy + T[0, 2] * d + T[0, 3]) / z + K_map[0, 2]
-            mv = K_map[1, 1] * (T[1, 0] * cx + T[1, 1] * cy + T[1, 2] * d + T[1, 3]) / z + K_map[1, 2]
+            mu, mv = K_map[0, 0] * px / z + K_map[0, 2], K_map[1, 1] * py / z + K_map[1, 2]
             offset = nx * cx + ny * cy + nz * d
             lo_x = lo_y = np.inf
             hi_x = hi_y = -np.inf
             for corner in range(4):
-                rx = (u + (corner % 2 - 0.5) - K[0, 2]) / K[0, 0]
-                ry = (v + (corner // 2 - 0.5) - K[1, 2]) / K[1, 1]
-                facing = nx * rx + ny * ry + nz
-                t = offset / facing if abs(facing) > 1e-6 else d
-                t = min(max(t, 0.5 * d), 2.0 * d)
-                x, y = rx * t, ry * t
-                pz = max(T[2, 0] * x + T[2, 1] * y + T[2, 2] * t + T[2, 3], 1e-9)
-                cu = K_map[0, 0] * (T[0, 0] * x + T[0, 1] * y + T[0, 2] * t + T[0, 3]) / pz + K_map[0, 2]
-                cv = K_map[1, 1] * (T[1, 0] * x + T[1, 1] * y + T[1, 2] * t + T[1, 3]) / pz + K_map[1, 2]
+                px, py, pz = _moved(T, *_corner(u, v, corner, d, nx, ny, nz, offset, K))
+                pz = max(pz, 1e-9)
+                cu, cv = K_map[0, 0] * px / pz + K_map[0, 2], K_map[1, 1] * py / pz + K_map[1, 2]
                 lo_x, hi_x = min(lo_x, cu), max(hi_x, cu)
                 lo_y, hi_y = min(lo_y, cv), max(hi_y, cv)
             lo_x, hi_x = max(lo_x, mu - max_size / 2), min(hi_x, mu + max_size / 2)
@@ -331,9 +338,7 @@ def _shade(depth, normals, albedo, gloss, roughness, K, T_base_cam, T_proj_cam, 
                 out[v, u] = world
                 continue
             cx, cy = (u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d
-            px = R[0, 0] * cx + R[0, 1] * cy + R[0, 2] * d + t[0]
-            py = R[1, 0] * cx + R[1, 1] * cy + R[1, 2] * d + t[1]
-            pz = R[2, 0] * cx + R[2, 1] * cy + R[2, 2] * d + t[2]
+            px, py, pz = _moved(T_base_cam, cx, cy, d)
             nx, ny, nz = normals[v, u, 0], normals[v, u, 1], normals[v, u, 2]
             lx, ly, lz = projector[0] - px, projector[1] - py, projector[2] - pz
             r2 = max(lx * lx + ly * ly + lz * lz, 1e-6)
@@ -341,10 +346,8 @@ def _shade(depth, normals, albedo, gloss, roughness, K, T_base_cam, T_proj_cam, 
             lx, ly, lz = lx / r, ly / r, lz / r
             dots = 0.0
             if _sees(px, py, pz, T_proj_base, shadow, shadow_K):
-                share = _footprint_mean(u, v, d, R[0, 0] * nx + R[1, 0] * ny + R[2, 0] * nz,
-                                        R[0, 1] * nx + R[1, 1] * ny + R[2, 1] * nz,
-                                        R[0, 2] * nx + R[1, 2] * ny + R[2, 2] * nz, cx, cy, d, K, T_proj_cam,
-                                        table, size, scale, max_footprint)
+                share = _footprint_mean(u, v, d, *_rotated_back(R, nx, ny, nz), cx, cy, d, K, T_proj_cam, table,
+                                        size, scale, max_footprint)
                 dots = intensity * share * max(nx * lx + ny * ly + nz * lz, 0.0) / r2
             ex, ey, ez = t[0] - px, t[1] - py, t[2] - pz
             length = max(np.sqrt(ex * ex + ey * ey + ez * ez), 1e-9)
