@@ -141,21 +141,21 @@ def dot_share(g: GBuffer, projector: Projector, points_cam: np.ndarray) -> np.nd
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _moved(T, x, y, z):
     """A point moved by a 4 x 4 transform."""
     return (T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3], T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3],
             T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3])
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _rotated_back(R, x, y, z):
     """A direction moved by R's transpose (a base-frame normal into the camera frame, R = T_base_cam's)."""
     return (R[0, 0] * x + R[1, 0] * y + R[2, 0] * z, R[0, 1] * x + R[1, 1] * y + R[2, 1] * z,
             R[0, 2] * x + R[1, 2] * y + R[2, 2] * z)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _corner(u, v, corner, d, nx, ny, nz, offset, K):
     """Where corner `corner` (0-3) of pixel (u, v)'s ray meets the tangent plane n . p = offset of its centre's
     surface (camera frame, depth d at the centre)."""
@@ -187,7 +187,8 @@ def _footprint_mean(u, v, d, nx, ny, nz, x0, y0, z0, K, T, table, size, scale, m
     lo_x = lo_y = np.inf
     hi_x = hi_y = -np.inf
     for corner in range(4):
-        px, py, pz = _moved(T, *_corner(u, v, corner, d, nx, ny, nz, offset, K))
+        x, y, z = _corner(u, v, corner, d, nx, ny, nz, offset, K)
+        px, py, pz = _moved(T, x, y, z)
         pz = max(pz, 1e-9)
         cu, cv = size * (0.5 + scale * px / pz), size * (0.5 + scale * py / pz)
         lo_x, hi_x = min(lo_x, cu), max(hi_x, cu)
@@ -269,7 +270,8 @@ def _splat(depth, normals, T_base_cam, K, T, K_map, max_size, out):
             lo_x = lo_y = np.inf
             hi_x = hi_y = -np.inf
             for corner in range(4):
-                px, py, pz = _moved(T, *_corner(u, v, corner, d, nx, ny, nz, offset, K))
+                x, y, t = _corner(u, v, corner, d, nx, ny, nz, offset, K)
+                px, py, pz = _moved(T, x, y, t)
                 pz = max(pz, 1e-9)
                 cu, cv = K_map[0, 0] * px / pz + K_map[0, 2], K_map[1, 1] * py / pz + K_map[1, 2]
                 lo_x, hi_x = min(lo_x, cu), max(hi_x, cu)
@@ -346,8 +348,9 @@ def _shade(depth, normals, albedo, gloss, roughness, K, T_base_cam, T_proj_cam, 
             lx, ly, lz = lx / r, ly / r, lz / r
             dots = 0.0
             if _sees(px, py, pz, T_proj_base, shadow, shadow_K):
-                share = _footprint_mean(u, v, d, *_rotated_back(R, nx, ny, nz), cx, cy, d, K, T_proj_cam, table,
-                                        size, scale, max_footprint)
+                mx, my, mz = _rotated_back(R, nx, ny, nz)
+                share = _footprint_mean(u, v, d, mx, my, mz, cx, cy, d, K, T_proj_cam, table, size, scale,
+                                        max_footprint)
                 dots = intensity * share * max(nx * lx + ny * ly + nz * lz, 0.0) / r2
             ex, ey, ez = t[0] - px, t[1] - py, t[2] - pz
             length = max(np.sqrt(ex * ex + ey * ey + ez * ez), 1e-9)
