@@ -8,6 +8,7 @@ import sys
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from kernel.bop import read_frame, read_scene, split_dir
 from kernel.transforms import make_T
@@ -131,7 +132,8 @@ def test_depth_stereo_layout_and_profile(tmp_path, assets):
     # the projector's depth map rendered by Cycles instead of splatted from the imagers: the same sensor but for
     # the noise, which any change of the images re-draws (median |error| 15.5 and 16.7 mm here, holes 1 %)
     rendered = tmp_path / "d435-rendered.yaml"
-    rendered.write_text((SENSORS_DIR / "d435.yaml").read_text().replace("shadow: splatted", "shadow: rendered"))
+    profile = yaml.safe_load((SENSORS_DIR / "d435.yaml").read_text())
+    rendered.write_text(yaml.safe_dump({**profile, "projector": {**profile["projector"], "shadow": "rendered"}}))
     proc = subprocess.run([sys.executable, "-m", "syneepose", "render", "--preset", "mini", "--out", str(tmp_path / "r"),
                            "--robots", "ur5e+robotiq_2f85", "--frames", "1", "--resolution", "96x72", "--samples", "2",
                            "--depth", "stereo", "--sensor", str(rendered)], capture_output=True, text=True)
