@@ -1,4 +1,5 @@
-"""Where jobs run: each in a fresh spawned process here (bpy leaks over long loops), or as Ray tasks.
+"""Where jobs run: in spawned worker processes here, each serving a few jobs and then replaced (bpy leaks over
+long loops), or as Ray tasks.
 
 A stopped run stops everything: on Ctrl-C, SIGTERM or a failed job the main process kills its workers
 (SIGTERM, then SIGKILL after `GRACE_S`), and a worker whose parent dies is killed by the kernel
@@ -20,39 +21,74 @@ from multiprocessing.connection import wait
 from kernel.errors import UserError
 
 GRACE_S = 2.0  # a worker asked to stop gets this long before it is killed
+JOBS_PER_PROCESS = 8  # a reused worker saves ~2 s of imports a job; its RSS grows ~13 MiB a mini segment (570 -> 800 over 18)
 
 
-def run_local(fn, jobs: list, workers: list[dict[str, str]], progress) -> None:
-    """One job at a time per worker, each `fn(job)` in its own process started with that worker's
-    environment variables (`workers`: one dict each, e.g. the GPU it is pinned to, devices.py);
-    `progress(job)` as each ends. The first failure stops the others and is raised here."""
+def run_local(fn, jobs: list, workers: list[dict[str, str]], progress, jobs_per_process: int = JOBS_PER_PROCESS) -> None:
+    """Jobs on the local worker slots (`workers`: one environment dict each, e.g. the GPU it is pinned to,
+    devices.py), one at a time per slot, each slot's process started with its environment and serving up to
+    `jobs_per_process` jobs before a fresh one takes over; `progress(job)` as each ends. The first failure
+    stops the others and is raised here."""
     ctx = get_context("spawn")
-    pending, free = list(jobs), list(workers)
-    running = {}  # receiving end of a job's pipe -> (process, job, its worker's environment)
+    pending = list(jobs)
+    free = [_Slot(environment) for environment in workers]
+    running = {}  # a busy slot's connection -> (slot, job)
     try:
         while pending or running:
             while pending and free:
-                job, environment = pending.pop(0), free.pop(0)
-                receive, send = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_work, args=(fn, job, send, os.getpid(), environment))
-                proc.start()
-                send.close()
-                running[receive] = (proc, job, environment)
-            for receive in wait(list(running)):
-                proc, job, environment = running.pop(receive)
-                free.append(environment)
+                slot, job = free.pop(0), pending.pop(0)
+                slot.start(ctx, fn, jobs_per_process)
+                slot.conn.send(job)
+                slot.served += 1
+                running[slot.conn] = (slot, job)
+            for conn in wait(list(running)):
+                slot, job = running.pop(conn)
                 try:
-                    failed, value = receive.recv()
+                    failed, value = conn.recv()
                 except EOFError:  # the process died without a word: killed, or out of memory
-                    proc.join()
-                    raise RuntimeError(f"the worker of {job} died (exit code {proc.exitcode})") from None
-                proc.join()
+                    slot.proc.join()
+                    raise RuntimeError(f"the worker of {job} died (exit code {slot.proc.exitcode})") from None
                 if failed:
                     raise value
+                free.append(slot)
                 progress(job)
+        for slot in free:
+            slot.retire()
     finally:
-        for proc, *_ in running.values():
-            _stop(proc)
+        for slot in [*free, *(slot for slot, _ in running.values())]:
+            if slot.proc is not None:
+                _stop(slot.proc)
+
+
+class _Slot:
+    """A worker slot: its environment, and the process serving it now (None before the first job)."""
+
+    def __init__(self, environment: dict[str, str]):
+        self.environment, self.proc, self.conn, self.served = environment, None, None, 0
+
+    def start(self, ctx, fn, jobs_per_process: int) -> None:
+        """A process for the next job: the running one while it has served fewer than `jobs_per_process`."""
+        if self.proc is not None and self.served < jobs_per_process:
+            return
+        self.retire()
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_work, args=(fn, child, os.getpid(), self.environment))
+        self.proc.start()
+        child.close()
+        self.served = 0
+
+    def retire(self) -> None:
+        """Let the process end after its last job (an end-of-jobs message), or stop it."""
+        if self.proc is None:
+            return
+        try:
+            self.conn.send(None)
+        except OSError:
+            pass
+        self.proc.join(GRACE_S)
+        _stop(self.proc)
+        self.conn.close()
+        self.proc = self.conn = None
 
 
 def _stop(proc) -> None:
@@ -63,22 +99,23 @@ def _stop(proc) -> None:
         proc.join()
 
 
-def _work(fn, job, send, parent: int, environment: dict[str, str]) -> None:
-    """Worker entry: takes its worker's variables before `fn` imports bpy, so that the GPU runtimes Cycles
-    starts see them; dies with its parent, leaves Ctrl-C to it (the terminal sends it to the whole group),
-    and sends back (failed, result or exception)."""
+def _work(fn, conn, parent: int, environment: dict[str, str]) -> None:
+    """Worker entry: takes its slot's variables before `fn` imports bpy, so that the GPU runtimes Cycles
+    starts see them; dies with its parent, leaves Ctrl-C to it (the terminal sends it to the whole group);
+    runs jobs as they come until told there are no more, sending back (failed, result or exception) for each."""
     os.environ.update(environment)
     _die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        result = (False, fn(job))
-    except BaseException as exc:  # it crosses the process boundary and is raised there
-        result = (True, exc)
-    try:
-        send.send(result)
-    except (pickle.PicklingError, TypeError, AttributeError):
-        send.send((True, RuntimeError(f"{type(result[1]).__name__}: {result[1]}")))
-    send.close()
+    while (job := conn.recv()) is not None:
+        try:
+            result = (False, fn(job))
+        except BaseException as exc:  # it crosses the process boundary and is raised there
+            result = (True, exc)
+        try:
+            conn.send(result)
+        except (pickle.PicklingError, TypeError, AttributeError):
+            conn.send((True, RuntimeError(f"{type(result[1]).__name__}: {result[1]}")))
+    conn.close()
 
 
 def _die_with_parent(parent: int) -> None:

@@ -111,6 +111,22 @@ def test_local_workers_start_each_job_pinned_to_their_own_gpu(tmp_path, monkeypa
     assert os.environ[CUDA] == "0,1"  # the parent is untouched
 
 
+def _pid(path: str) -> None:
+    Path(path).write_text(str(os.getpid()))
+
+
+def test_a_local_worker_process_serves_several_jobs_then_a_fresh_one_takes_over(tmp_path):
+    """A worker process's imports (bpy, numpy, the robot models: about 2 s) are paid once for several jobs,
+    and a process is replaced after `jobs_per_process` of them, so Blender's leaks cannot pile up."""
+    jobs = [str(tmp_path / f"{i}.txt") for i in range(5)]
+    done = []
+    run_local(_pid, jobs, [{}], done.append, jobs_per_process=2)
+    assert done == jobs
+    pids = [Path(j).read_text() for j in jobs]
+    assert pids[0] == pids[1] != pids[2] == pids[3] != pids[4]
+    assert len(set(pids)) == 3 and str(os.getpid()) not in pids
+
+
 def test_a_worker_sets_its_gpu_before_bpy_is_imported():
     """A spawned worker imports the command's and the jobs' modules before it runs a job: none imports bpy,
     so Cycles' GPU runtimes start after the worker has its CUDA_VISIBLE_DEVICES."""
