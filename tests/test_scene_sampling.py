@@ -116,6 +116,28 @@ def _assert_arm_rules(spec, checks, preset, width, height):
     assert (inside >= 0.999).all() and (visible >= preset.camera.min_visible).all()
 
 
+def test_the_planners_early_verdict_is_the_full_checks(ur5e_checks):
+    """`accepts` (what planning asks, stopping at the first failing frame) says what `check`'s per-frame
+    figures say, for cameras it accepts and cameras it rejects, on a mask of frames as the exit case gives."""
+    from syneepose.scene.sample import sample_segment
+
+    robot, checks = ur5e_checks
+    preset = load_preset("mini")
+    rng = rng_for(0, robot.config, 0)
+    q = trajectory(rng, robot.arm.home, robot.arm.limits, 8, 3, 0.8)
+    frames = np.arange(8) % 4 != 3
+    verdicts = set()
+    for _ in range(40):
+        spec = sample_segment(rng, preset, robot, robot.config, 0, 0, q, 64, 48, [])
+        inside, visible = checks.check(q, spec.T_base_cam, spec.K, 64, 48, 0.02)
+        expected = bool(np.all(inside[frames] >= 0.999) and np.all(visible[frames] >= preset.camera.min_visible))
+        assert checks.accepts(q, spec.T_base_cam, spec.K, 64, 48, 0.02, preset.camera.min_visible, frames) == expected
+        verdicts.add(expected)
+        if len(verdicts) == 2:
+            break
+    assert verdicts == {True, False}
+
+
 def test_planned_segment_meets_every_rule(ur5e_checks):
     robot, checks = ur5e_checks
     preset = load_preset("mini")

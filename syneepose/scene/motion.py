@@ -101,6 +101,21 @@ class MotionChecks:
         """Per frame: (fraction of points inside the image, fraction inside and unoccluded)."""
         return self.seen(q, T_base_cam, K, width, height, self.points, margin)
 
+    def accepts(self, q: np.ndarray, T_base_cam: np.ndarray, K: np.ndarray, width: int, height: int, margin: float,
+                min_visible: float, frames: np.ndarray) -> bool:
+        """`check`'s verdict on the `frames` (a mask): every point inside the image (up to 0.1 %) and at least
+        `min_visible` unoccluded. The same verdict, number for number, at a fraction of the cost: the image test
+        of every frame before any ray is cast, and the casting stopped at the first frame that fails (planning
+        rejects most cameras; `check` cast rays for all 16 frames of each, 0.3 s)."""
+        poses = self.robot.T_base_link(q)
+        T_cam_base = inv_T(T_base_cam)
+        kept = np.flatnonzero(frames)
+        if not all(self._inside(poses, T_cam_base, i, self.points, K, width, height, margin).mean() >= 0.999
+                   for i in kept):
+            return False
+        return all(self._seen_at(poses, T_cam_base, i, self.hulls, self.points, K, width, height, margin)[1]
+                   >= min_visible for i in kept)
+
     def seen(self, q: np.ndarray, T_base_cam: np.ndarray, K: np.ndarray, width: int, height: int,
              points_ee: np.ndarray, margin: float = 0.0, ee_occludes: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Per frame: the fraction of `points_ee` (fixed to the end-effector) inside the image, and inside and
@@ -108,24 +123,32 @@ class MotionChecks:
         poses = self.robot.T_base_link(q)
         T_cam_base = inv_T(T_base_cam)
         hulls = dict(self.hulls, **({self.robot.ee_root: self.hull_ee} if ee_occludes else {}))
-        inside, visible = np.zeros(len(q)), np.zeros(len(q))
-        for i in range(len(q)):
-            p_cam = transform_points(T_cam_base @ poses[self.robot.ee_root][i], points_ee)
-            ok = in_image(p_cam, K, width, height, margin)
-            inside[i] = ok.mean()
-            if not ok.any():
-                continue
-            occluders = trimesh.util.concatenate([h.copy().apply_transform(T_cam_base @ poses[name][i])
-                                                  for name, h in hulls.items()])
-            targets = p_cam[ok]
-            dist = np.linalg.norm(targets, axis=1)
-            dirs = targets / dist[:, None]
-            locs, ray_idx, _ = occluders.ray.intersects_location(np.zeros_like(dirs), dirs, multiple_hits=False)
-            blocked = np.zeros(len(dirs), bool)
-            hit = np.linalg.norm(locs, axis=1) < dist[ray_idx] - 0.005
-            blocked[ray_idx[hit]] = True
-            visible[i] = (~blocked).sum() / len(points_ee)
-        return inside, visible
+        seen = np.array([self._seen_at(poses, T_cam_base, i, hulls, points_ee, K, width, height, margin)
+                         for i in range(len(q))]).reshape(len(q), 2)
+        return seen[:, 0], seen[:, 1]
+
+    def _inside(self, poses, T_cam_base, i, points_ee, K, width, height, margin) -> np.ndarray:
+        return in_image(self._points_cam(poses, T_cam_base, i, points_ee), K, width, height, margin)
+
+    def _points_cam(self, poses, T_cam_base, i, points_ee) -> np.ndarray:
+        return transform_points(T_cam_base @ poses[self.robot.ee_root][i], points_ee)
+
+    def _seen_at(self, poses, T_cam_base, i, hulls, points_ee, K, width, height, margin) -> tuple[float, float]:
+        """Frame i: (share of the points inside the image, share inside and not behind a hull)."""
+        p_cam = self._points_cam(poses, T_cam_base, i, points_ee)
+        ok = in_image(p_cam, K, width, height, margin)
+        if not ok.any():
+            return ok.mean(), 0.0
+        occluders = trimesh.util.concatenate([h.copy().apply_transform(T_cam_base @ poses[name][i])
+                                              for name, h in hulls.items()])
+        targets = p_cam[ok]
+        dist = np.linalg.norm(targets, axis=1)
+        dirs = targets / dist[:, None]
+        locs, ray_idx, _ = occluders.ray.intersects_location(np.zeros_like(dirs), dirs, multiple_hits=False)
+        blocked = np.zeros(len(dirs), bool)
+        hit = np.linalg.norm(locs, axis=1) < dist[ray_idx] - 0.005
+        blocked[ray_idx[hit]] = True
+        return ok.mean(), (~blocked).sum() / len(points_ee)
 
     def ee_points(self, q: np.ndarray) -> np.ndarray:
         """The end-effector's surface points (`points`) in the base, per frame: (frames, points, 3)."""

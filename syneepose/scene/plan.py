@@ -44,8 +44,7 @@ def plan_segment(preset: Preset, robot, checks: MotionChecks, stream: int, seed:
                         continue
                     spec = replace(spec, T_base_cam=T_base_cam)
                     in_view, keep = ~out, ~out & ~hard.free_frames(out)
-                inside, visible = checks.check(q, spec.T_base_cam, spec.K, width, height, margin)
-                if np.all(inside[keep] >= 0.999) and np.all(visible[keep] >= min_visible):
+                if checks.accepts(q, spec.T_base_cam, spec.K, width, height, margin, min_visible, keep):
                     return _with_hard_cases(rng, preset, robot, checks, spec, in_view, width, height)
     rules = " and hard.exit's run out of view" if exits else ""
     raise UserError(f"{robot.config}: no trajectory and camera met the preset's visibility rules{rules} after "
