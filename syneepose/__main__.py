@@ -106,11 +106,17 @@ class Phase:
         return [j for j in self.jobs if self.done_before[j] < j.frames]
 
 
-def _render_seconds(pixels: int, samples: int) -> float:
-    """Estimated seconds of one Cycles render on 2 cores: a fixed part (scene sync, EXR, PNG writes) and one
-    per pixel-sample, fitted to `mini` frames (320x240, 16 spp: 2.3 s) and template views (128 px, 8 spp,
-    with their 12 rolled templates written: 0.78 s), 2026-11-25. Only the ratios matter: they share one ETA."""
-    return 0.6 + 1.4e-6 * pixels * samples
+def _frame_seconds(pixels: int, samples: int) -> float:
+    """Estimated seconds of one rendered frame on 2 cores: a fixed part (the segment's plan shared out, scene
+    sync, EXR, PNG writes) and one per pixel-sample, fitted to `mini` frames (320x240: 0.93 s at 4 spp in a fresh
+    `make dataset`, 1.5 s at 8 spp, 2026-11-28). Only its ratio to `_view_seconds` matters: they share one ETA."""
+    return 0.35 + 1.9e-6 * pixels * samples
+
+
+def _view_seconds(pixels: int, samples: int) -> float:
+    """Estimated seconds of one template view on 2 cores, its rolled templates written: the end-effector alone
+    costs less a sample than a scene (128 px at 8 spp, 12 rolls: 0.15 s in a fresh `make dataset`, 2026-11-28)."""
+    return 1.2e-6 * pixels * samples
 
 
 def _check_hard_case(name: str) -> None:
@@ -164,7 +170,7 @@ def _plan_render(args) -> Phase:
         write_root_files(out, preset, width, height)
 
     return Phase("render", "frame", run_job, jobs, {j: frames_done(j) for j in jobs},
-                 _render_seconds(width * height, preset.samples), finish,
+                 _frame_seconds(width * height, preset.samples), finish,
                  f"render: {len(jobs)} segments in {out / SPLIT}")
 
 
@@ -288,7 +294,7 @@ def _plan_templates(args) -> Phase:
     done_before = {j: templates_done(j) for j in jobs}
     for job in jobs:
         check_recipe(job.folder, job.samples, job.inplane_by, done_before[job] >= job.frames, DENOISE_PREFILTER)
-    per_render = _render_seconds(settings.resolution**2, settings.samples)
+    per_render = _view_seconds(settings.resolution**2, settings.samples)
     return Phase("templates", "template", run_template_job, jobs, done_before,
                  per_render / settings.inplane if args.inplane_by == "rotated" else per_render, lambda: None,
                  f"templates: {len(jobs)} end-effectors in {Dataset(out).templates_dir}")
