@@ -31,7 +31,8 @@ def run_local(fn, jobs: list, workers: list[dict[str, str]], progress, jobs_per_
     stops the others and is raised here."""
     ctx = get_context("spawn")
     pending = list(jobs)
-    free = [_Slot(environment) for environment in workers]
+    slots = [_Slot(environment) for environment in workers]
+    free = list(slots)
     running = {}  # a busy slot's connection -> (slot, job)
     try:
         while pending or running:
@@ -52,10 +53,10 @@ def run_local(fn, jobs: list, workers: list[dict[str, str]], progress, jobs_per_
                     raise value
                 free.append(slot)
                 progress(job)
-        for slot in free:
+        for slot in slots:
             slot.retire()
-    finally:
-        for slot in [*free, *(slot for slot, _ in running.values())]:
+    finally:  # a failed job's worker too: it waits for its next job, and Python's exit would wait for it
+        for slot in slots:
             if slot.proc is not None:
                 _stop(slot.proc)
 

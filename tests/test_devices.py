@@ -5,6 +5,7 @@ GPUs come as the environment and `nvidia-smi -L` text a machine would give, and 
 """
 
 import json
+import multiprocessing
 import os
 import subprocess
 import sys
@@ -125,6 +126,17 @@ def test_a_local_worker_process_serves_several_jobs_then_a_fresh_one_takes_over(
     pids = [Path(j).read_text() for j in jobs]
     assert pids[0] == pids[1] != pids[2] == pids[3] != pids[4]
     assert len(set(pids)) == 3 and str(os.getpid()) not in pids
+
+
+def _fail(path: str) -> None:
+    raise ValueError(f"no such scene: {path}")
+
+
+def test_a_failed_job_stops_its_reused_worker_too():
+    """The failed job's worker would wait for its next job, and Python's exit would wait for that worker."""
+    with pytest.raises(ValueError, match="no such scene: a"):
+        run_local(_fail, ["a", "b"], [{}], lambda job: None)
+    assert not multiprocessing.active_children()
 
 
 def test_a_worker_sets_its_gpu_before_bpy_is_imported():
