@@ -1,5 +1,6 @@
 """Where a `mini` frame's time goes: the segment loop of syneepose/blender/segment.py timed step by step
-(forward kinematics and object poses, Blender's render call, EXR read, BOP write), and the render call split
+(forward kinematics and object poses, Blender's render call, EXR read, the end-effector's silhouette raster,
+BOP write), and the render call split
 by rendering the same frames again without the denoiser and at one sample (what is left is scene sync, BVH
 build and the EXR write). Prints figures, asserts nothing:
 `.venv/bin/python benchmarks/render_profile.py [--config ARM+EE] [--frames N]`.
@@ -19,6 +20,7 @@ from syneepose import paths
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import read_passes
 from syneepose.colour import linear_to_srgb8
+from syneepose.ee_silhouette import EeSilhouette
 from syneepose.blender.segment import build_scene
 from syneepose.preset import load_preset
 from syneepose.robots.ee_models import load_ee_mesh
@@ -49,7 +51,8 @@ def main() -> None:
     objects = build_scene(spec, preset.render_settings(), robot)
     build_s = time.perf_counter() - start
     frames = np.linspace(0, preset.frames - 1, args.frames).round().astype(int)
-    steps = {"FK and object poses": [], "render call": [], "EXR read": [], "BOP write": []}
+    silhouette = EeSilhouette(robot.model, robot.urdf.parent, set(robot.ee_links))
+    steps = {"FK and object poses": [], "render call": [], "EXR read": [], "silhouette raster": [], "BOP write": []}
     with tempfile.TemporaryDirectory() as tmp:
         writer = SceneWriter(Path(tmp) / "scene", SceneMeta(obj_id=robot.ee.obj_id, arm=robot.arm.name,
                              end_effector=robot.ee.name, joint_names=list(robot.arm.joints),
@@ -64,20 +67,22 @@ def main() -> None:
             t2 = time.perf_counter()
             passes = read_passes(exr)
             t3 = time.perf_counter()
-            ee = np.rint(passes[f"{bscene.EE_ONLY}.Object Index"]) == bscene.PASS_EE
+            visib = np.rint(passes[f"{bscene.MAIN}.Object Index"]) == bscene.PASS_EE
+            ee = silhouette.mask(T_base_link, inv_T(spec.T_base_cam), spec.K, visib.shape) | visib
+            t4 = time.perf_counter()
             depth = passes[f"{bscene.MAIN}.Depth"]
             writer.write(Frame(im_id=int(i), rgb=linear_to_srgb8(passes[f"{bscene.MAIN}.Combined"][..., :3]),
-                               depth=np.where(depth < MAX_DEPTH, depth, 0.0), mask=ee,
-                               mask_visib=np.rint(passes[f"{bscene.MAIN}.Object Index"]) == bscene.PASS_EE, K=spec.K,
+                               depth=np.where(depth < MAX_DEPTH, depth, 0.0), mask=ee, mask_visib=visib, K=spec.K,
                                T_cam_ee=inv_T(spec.T_base_cam) @ T_base_link[robot.ee_root],
                                joint_positions=spec.q[i], T_base_ee=T_base_link[robot.ee_root]))
-            t4 = time.perf_counter()
+            t5 = time.perf_counter()
             steps["FK and object poses"].append(t1 - t0)
             steps["EXR read"].append(t3 - t2)
-            steps["BOP write"].append(t4 - t3)
+            steps["silhouette raster"].append(t4 - t3)
+            steps["BOP write"].append(t5 - t4)
         scene = bpy.context.scene
         calls = {}
-        for label, samples in (("16 spp, no denoiser", preset.samples), ("1 spp, no denoiser", 1)):
+        for label, samples in ((f"{preset.samples} spp, no denoiser", preset.samples), ("1 spp, no denoiser", 1)):
             scene.cycles.samples, scene.cycles.use_denoising = samples, False
             calls[label] = []
             for i in frames:
@@ -90,7 +95,7 @@ def main() -> None:
         print(f"  {name:22s} {np.mean(values):6.3f} s/frame ({100 * np.mean(values) / whole:4.1f} %)")
     full, plain, one = np.mean(steps["render call"]), *(np.mean(v) for v in calls.values())
     print(f"  render call split: denoiser {full - plain:.2f} s, path tracing at {preset.samples} spp beyond the first "
-          f"{plain - one:.2f} s, the rest (first sample, sync, BVH, EXR write, EE-only layer) {one:.2f} s")
+          f"{plain - one:.2f} s, the rest (first sample, sync, BVH, EXR write) {one:.2f} s")
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 reference (no denoiser, 12 bounces) for today's settings and alternatives, on the same planned frames.
 
 Each variant changes one thing, or a few, against today's (scenes/mini.yaml: 4 spp, OIDN denoiser with the
-fast prefilter, 8 bounces, light tree, no adaptive sampling; the EE-only layer undenoised and emission-shaded);
+fast prefilter, 8 bounces, light tree, no adaptive sampling; one view layer, the end-effector's mask rasterised);
 times are the render call per frame (Cycles and its EXR; the scene build excluded), the variants interleaved frame by frame so a noisy
 machine slows them alike. Prints figures, asserts nothing:
 `.venv/bin/python benchmarks/render_settings.py [--configs A+B,...] [--frames N] [--variants "A;B"]`.

@@ -1,9 +1,8 @@
 """Build and render a SynEEPose segment in Blender (Cycles).
 
-Two view layers: `main` (everything; RGB, z-depth, object index) and `ee_only` (only the
-end-effector, 1 sample; its object index is the full silhouette that BOP calls `mask`). Depth and
-object index come from the pixel-centre ray, so they agree with each other and with OpenCV. A scene of
-the end-effector alone (templates) needs no `ee_only` layer: its `main` passes are the same pixels.
+One view layer, `main`: RGB, z-depth and object index. Depth and object index come from the pixel-centre
+ray, so they agree with each other and with OpenCV. The end-effector's occlusion-free silhouette (BOP's
+`mask`) is rasterised from its meshes (syneepose/ee_silhouette.py), no longer rendered by a second layer.
 """
 
 from __future__ import annotations
@@ -29,16 +28,15 @@ from syneepose.scene.spec import Distractor, Light, Occluder, Plane, Surface
 
 PASS_EE, PASS_BOARD = 1, 3
 PASS_LINK0 = 16  # arm link k (of RobotObjects.arm_links) renders object index PASS_LINK0 + k
-MAIN, EE_ONLY = "main", "ee_only"
+MAIN = "main"
 BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 def reset(width: int, height: int, samples: int, denoise: bool = False, max_bounces: int = 12,
           world_color=(0.05, 0.05, 0.05), world_strength: float = 1.0, transparent: bool = False,
-          device: str = "cpu", threads: int = 0, prefilter: str = DEFAULT_PREFILTER, ee_layer: bool = True) -> None:
+          device: str = "cpu", threads: int = 0, prefilter: str = DEFAULT_PREFILTER) -> None:
     """Empty Cycles scene; `transparent` renders the background black (templates); `threads` 0: all cores;
-    `prefilter`: how the denoiser cleans its albedo and normal passes (preset.PREFILTERS); `ee_layer`: the
-    `ee_only` view layer, which a scene of the end-effector alone does without."""
+    `prefilter`: how the denoiser cleans its albedo and normal passes (preset.PREFILTERS)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -67,35 +65,12 @@ def reset(width: int, height: int, samples: int, denoise: bool = False, max_boun
     main = scene.view_layers[0]
     main.name = MAIN
     main.use_pass_z = main.use_pass_object_index = True
-    if ee_layer:
-        _add_ee_only_layer(scene)
     world = bpy.data.worlds.new("world")
     scene.world = world
     world.use_nodes = True
     background = world.node_tree.nodes["Background"]
     background.inputs["Color"].default_value = (*world_color, 1.0)
     background.inputs["Strength"].default_value = world_strength
-
-
-def _add_ee_only_layer(scene) -> None:
-    ee_only = scene.view_layers.new(EE_ONLY)
-    ee_only.samples = 1
-    # The EE-only layer gives the occlusion-free mask and depth, never pixels: no denoiser and a plain emission
-    # instead of light sampling cost a quarter of a mini frame (benchmarks/render_settings.py), outputs identical
-    ee_only.cycles.use_denoising = False
-    ee_only.material_override = _emission_material()
-    ee_only.use_pass_z = ee_only.use_pass_object_index = True
-    for child in ee_only.layer_collection.children:
-        child.exclude = child.name != "ee"
-
-
-def _emission_material():
-    material, bsdf = _principled("ee-only")
-    nodes = material.node_tree.nodes
-    nodes.remove(bsdf)
-    emission = nodes.new("ShaderNodeEmission")
-    material.node_tree.links.new(emission.outputs["Emission"], nodes["Material Output"].inputs["Surface"])
-    return material
 
 
 def gpu_devices() -> dict[str, list[str]]:
@@ -332,12 +307,11 @@ def _rgba(grey: np.ndarray) -> np.ndarray:
     return out.ravel()
 
 
-LAYER_PASSES = {MAIN: ("Combined", "Depth", "Object Index"), EE_ONLY: ("Depth", "Object Index")}
+LAYER_PASSES = {MAIN: ("Combined", "Depth", "Object Index")}
 
 
 def render(workdir: Path | None = None) -> dict[str, np.ndarray]:
-    """Render the current frame; returns linear RGB and the passes of its layers (H, W): `ee_depth` and
-    `ee_index` only from a scene with the `ee_only` layer."""
+    """Render the current frame; returns linear RGB and the main layer's depth and object index (H, W)."""
     fd, path = tempfile.mkstemp(suffix=".exr", dir=workdir)
     os.close(fd)
     try:
@@ -355,9 +329,5 @@ def render(workdir: Path | None = None) -> dict[str, np.ndarray]:
         free_mb = shutil.disk_usage(Path(path).parent).free / 2**20
         raise UserError(f"Blender's render came back without {', '.join(missing)} ({free_mb:.0f} MB free in "
                         f"{Path(path).parent}: a full disk cuts its EXR short); free space and run again")
-    out = {"rgb_linear": passes[f"{MAIN}.Combined"][..., :3], "depth": passes[f"{MAIN}.Depth"],
-           "index": np.rint(passes[f"{MAIN}.Object Index"]).astype(np.int32)}
-    if EE_ONLY in layers:
-        out.update(ee_depth=passes[f"{EE_ONLY}.Depth"],
-                   ee_index=np.rint(passes[f"{EE_ONLY}.Object Index"]).astype(np.int32))
-    return out
+    return {"rgb_linear": passes[f"{MAIN}.Combined"][..., :3], "depth": passes[f"{MAIN}.Depth"],
+            "index": np.rint(passes[f"{MAIN}.Object Index"]).astype(np.int32)}

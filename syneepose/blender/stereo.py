@@ -214,7 +214,7 @@ class IrRig:
         return images[0], images[1]
 
     def _common_mode(self) -> dict:
-        """The IR camera at the IR size, one view layer, no denoiser; returns what it changed."""
+        """The IR camera at the IR size, no denoiser; returns what it changed."""
         scene = bpy.context.scene
         saved = {"camera": scene.camera, "size": (scene.render.resolution_x, scene.render.resolution_y),
                  "aspect": (scene.render.pixel_aspect_x, scene.render.pixel_aspect_y),
@@ -223,7 +223,6 @@ class IrRig:
         scene.render.resolution_x, scene.render.resolution_y = self.ir_size
         scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
         scene.cycles.use_denoising = False
-        scene.view_layers[bscene.EE_ONLY].use = False
         return saved
 
     def _ir_mode(self, T_base_left: np.ndarray) -> dict:
@@ -248,7 +247,6 @@ class IrRig:
         scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = saved["aspect"]
         scene.cycles.samples = saved["samples"]
         scene.cycles.use_denoising = saved["denoise"]
-        scene.view_layers[bscene.EE_ONLY].use = True
         scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = saved["world"]
         for ob, energy in saved.get("lights", ()):
             ob.data.energy = energy

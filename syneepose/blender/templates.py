@@ -33,8 +33,7 @@ def render_templates(model: RobotModel, urdf_dir: Path, canonical: dict[str, flo
     if not todo:
         return 0
     bscene.reset(resolution, resolution, samples, denoise=samples >= 4, world_color=(1.0, 1.0, 1.0),
-                 world_strength=1.0, transparent=True, device=device, threads=threads, prefilter=DENOISE_PREFILTER,
-                 ee_layer=False)
+                 world_strength=1.0, transparent=True, device=device, threads=threads, prefilter=DENOISE_PREFILTER)
     bscene.set_camera(K, resolution, resolution, np.eye(4))
     objects = bscene.RobotObjects(model, Path(urdf_dir), {lk.name for lk in model.links})
     objects.pose(Kinematics(model).link_poses(canonical))
