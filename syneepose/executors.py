@@ -21,10 +21,13 @@ from multiprocessing.connection import wait
 from kernel.errors import UserError
 
 GRACE_S = 2.0  # a worker asked to stop gets this long before it is killed
-JOBS_PER_PROCESS = 8  # a reused worker saves ~2 s of imports a job; its RSS grows ~13 MiB a mini segment (570 -> 800 over 18)
+# jobs a local worker process serves: a reused one saves ~2 s of imports a job, and its resident memory grows
+# ~13 MiB a mini segment (570 -> 800 MiB over 18), so it is replaced after a few
+JOBS_PER_PROCESS = 8
 
 
-def run_local(fn, jobs: list, workers: list[dict[str, str]], progress, jobs_per_process: int = JOBS_PER_PROCESS) -> None:
+def run_local(fn, jobs: list, workers: list[dict[str, str]], progress,
+              jobs_per_process: int = JOBS_PER_PROCESS) -> None:
     """Jobs on the local worker slots (`workers`: one environment dict each, e.g. the GPU it is pinned to,
     devices.py), one at a time per slot, each slot's process started with its environment and serving up to
     `jobs_per_process` jobs before a fresh one takes over; `progress(job)` as each ends. The first failure
@@ -143,7 +146,7 @@ def run_ray(fn, jobs: list, address: str | None, progress, cpus: int = 1, gpus: 
     if gpus and not ray.cluster_resources().get("GPU"):  # else Ray waits for one forever
         raise UserError("--device gpu: the Ray cluster has no GPU (`ray status` lists none); start its nodes on "
                         "GPU machines (ray start finds their GPUs, or give --num-gpus N), or render with --device cpu")
-    # a fresh worker per job, as locally
+    # a fresh worker per task (max_calls=1); the reuse of local workers (JOBS_PER_PROCESS) is not tried under Ray
     remote = ray.remote(max_retries=2, max_calls=1, num_cpus=cpus, num_gpus=gpus)(fn)
     pending = {remote.remote(job): job for job in jobs}
     try:
