@@ -34,7 +34,7 @@ def spec_for(frames: int, width: int, height: int, samples: int):
     robot = load_robot(CONFIG)
     mesh = load_ee_mesh(robot.ee, paths.part_urdf(robot.ee.name))
     spec = plan_segment(load_preset("mini"), robot, MotionChecks(robot, mesh), 0, 0, frames, width, height)
-    return robot, spec, RenderSettings(width, height, samples, denoise=False, max_bounces=12)
+    return robot, mesh, spec, RenderSettings(width, height, samples, denoise=False, max_bounces=12)
 
 
 def bare_cycles(robot, spec, render, frames: int) -> float:
@@ -57,13 +57,13 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="3 frames and a 60-frame memory run")
     args = parser.parse_args()
     frames, pairs = (3, 1) if args.quick else (6, 3)
-    robot, spec, render = spec_for(frames, 640, 480, 16)
+    robot, mesh, spec, render = spec_for(frames, 640, 480, 16)
     ours, bare = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        render_segment(spec, render, robot, Path(tmp) / "warm", None)
+        render_segment(spec, render, robot, mesh, Path(tmp) / "warm", None)
         for k in range(pairs):  # alternated, so a machine that slows down slows both alike
             t0 = time.perf_counter()
-            render_segment(spec, render, robot, Path(tmp) / f"timed{k}", None)
+            render_segment(spec, render, robot, mesh, Path(tmp) / f"timed{k}", None)
             ours.append((time.perf_counter() - t0) / frames)
             bare.append(bare_cycles(robot, spec, render, frames))
     ratio = np.median(np.array(ours) / np.array(bare))
@@ -72,7 +72,7 @@ def main() -> None:
           f"(median of the pairs' ratios; each: {', '.join(f'{o / b:.3f}' for o, b in zip(ours, bare))})")
 
     n = 60 if args.quick else 300
-    robot, spec, render = spec_for(n, 160, 120, 1)
+    robot, mesh, spec, render = spec_for(n, 160, 120, 1)
     marks = {}
     with tempfile.TemporaryDirectory() as tmp:
         done = [0]
@@ -82,7 +82,7 @@ def main() -> None:
             if done[0] in (1, n // 3, 2 * n // 3, n):
                 marks[done[0]] = rss_mb()
 
-        render_segment(spec, render, robot, Path(tmp) / "memory", progress)
+        render_segment(spec, render, robot, mesh, Path(tmp) / "memory", progress)
     print(f"resident memory over a {n}-frame segment (160x120, 1 spp): "
           + ", ".join(f"frame {k}: {v:.0f} MB" for k, v in sorted(marks.items())))
 

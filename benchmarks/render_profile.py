@@ -14,13 +14,13 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from feepe import raster
 from kernel.bop import MAX_DEPTH, Frame, SceneMeta, SceneWriter
 from kernel.transforms import inv_T
 from syneepose import paths
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import read_passes
 from syneepose.colour import linear_to_srgb8
-from syneepose.ee_silhouette import EeSilhouette
 from syneepose.blender.segment import build_scene
 from syneepose.preset import load_preset
 from syneepose.robots.ee_models import load_ee_mesh
@@ -51,7 +51,6 @@ def main() -> None:
     objects = build_scene(spec, preset.render_settings(), robot)
     build_s = time.perf_counter() - start
     frames = np.linspace(0, preset.frames - 1, args.frames).round().astype(int)
-    silhouette = EeSilhouette(robot.model, robot.urdf.parent, set(robot.ee_links))
     steps = {"FK and object poses": [], "render call": [], "EXR read": [], "silhouette raster": [], "BOP write": []}
     with tempfile.TemporaryDirectory() as tmp:
         writer = SceneWriter(Path(tmp) / "scene", SceneMeta(obj_id=robot.ee.obj_id, arm=robot.arm.name,
@@ -68,12 +67,13 @@ def main() -> None:
             passes = read_passes(exr)
             t3 = time.perf_counter()
             visib = np.rint(passes[f"{bscene.MAIN}.Object Index"]) == bscene.PASS_EE
-            ee = silhouette.mask(T_base_link, inv_T(spec.T_base_cam), spec.K, visib.shape) | visib
+            T_cam_ee = inv_T(spec.T_base_cam) @ T_base_link[robot.ee_root]
+            ee = raster.silhouette(mesh.vertices, mesh.faces, T_cam_ee, spec.K, visib.shape) | visib
             t4 = time.perf_counter()
             depth = passes[f"{bscene.MAIN}.Depth"]
             writer.write(Frame(im_id=int(i), rgb=linear_to_srgb8(passes[f"{bscene.MAIN}.Combined"][..., :3]),
                                depth=np.where(depth < MAX_DEPTH, depth, 0.0), mask=ee, mask_visib=visib, K=spec.K,
-                               T_cam_ee=inv_T(spec.T_base_cam) @ T_base_link[robot.ee_root],
+                               T_cam_ee=T_cam_ee,
                                joint_positions=spec.q[i], T_base_ee=T_base_link[robot.ee_root]))
             t5 = time.perf_counter()
             steps["FK and object poses"].append(t1 - t0)

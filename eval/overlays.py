@@ -53,7 +53,7 @@ def load_mesh(path: Path) -> Mesh:
 
 def silhouette(mesh: Mesh, K: np.ndarray, T_cam_model: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(H, W) bool: the pixel centres the posed model covers (what lies behind the near plane cut off)."""
-    return raster.mask(raster.triangles(mesh.vertices, mesh.faces, T_cam_model, K)[0], shape)
+    return raster.silhouette(mesh.vertices, mesh.faces, T_cam_model, K, shape)
 
 
 def draw_axes(image: np.ndarray, K: np.ndarray, T_cam_model: np.ndarray, length: float) -> np.ndarray:

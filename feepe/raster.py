@@ -273,6 +273,13 @@ def mask(tri: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return out
 
 
+def silhouette(vertices: np.ndarray, faces: np.ndarray, T_cam_model: np.ndarray, K: np.ndarray,
+               shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: the pixel centres the mesh seen at `T_cam_model` covers (what lies behind the near plane
+    cut off)."""
+    return mask(triangles(vertices, faces, T_cam_model, K)[0], shape)
+
+
 def render_depth(vertices: np.ndarray, faces: np.ndarray, T_cam_model: np.ndarray, K: np.ndarray,
                  shape: tuple[int, int]) -> np.ndarray:
     """The mesh's depth at pixel centres (m along the optical axis, 0 off the mesh)."""

@@ -164,7 +164,7 @@ def run_job(job: Job) -> int:
     elif spec.marker is None:
         spec.marker = _mounted_board(content.preset, robot, mesh, spec)
     with _quiet_stdout():
-        return render_segment(spec, render, robot, job.scene_dir, settings=job.settings)
+        return render_segment(spec, render, robot, mesh, job.scene_dir, settings=job.settings)
 
 
 def _mounted_board(preset: Preset, robot, mesh, spec):

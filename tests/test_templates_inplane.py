@@ -138,24 +138,21 @@ def test_a_users_urdf_gives_the_templates_and_model_of_its_end_effector(both_set
 
 
 def test_the_rasterised_silhouette_is_what_cycles_renders(both_sets):
-    """A segment's `mask` is rasterised (syneepose/ee_silhouette.py), no longer rendered: on the templates
-    Cycles rendered one by one (the end-effector alone, so its index pass is that silhouette) the raster
-    gives the same pixels but for a few on the outline, where a pixel centre lies on an edge."""
+    """A segment's `mask` is the end-effector's rigid model rasterised (feepe.raster.silhouette), no longer
+    rendered: on the templates Cycles rendered one by one (the end-effector alone, so its index pass is that
+    silhouette) the raster gives the same pixels but for a few on the outline, where a pixel centre lies on an
+    edge."""
+    from feepe import raster
     from syneepose import paths
-    from syneepose.ee_silhouette import EeSilhouette
     from syneepose.robots.catalog import load_catalog
-    from syneepose.robots.kinematics import Kinematics
-    from syneepose.robots.model import read_urdf
+    from syneepose.robots.ee_models import load_ee_mesh
 
-    urdf = paths.part_urdf("robotiq_2f85")
-    model = read_urdf(urdf)
-    silhouette = EeSilhouette(model, urdf.parent, {link.name for link in model.links})
-    link_poses = Kinematics(model).link_poses(dict(load_catalog().end_effector("robotiq_2f85").canonical))
+    mesh = load_ee_mesh(load_catalog().end_effector("robotiq_2f85"), paths.part_urdf("robotiq_2f85"))
     index = read_index(both_sets[0])
     differing = covered = 0
     for template_id in range(VIEWS * INPLANE):
         template = read_template(both_sets[0], template_id, index)
-        mask = silhouette.mask(link_poses, template.T_cam_model, template.K, template.mask.shape)
+        mask = raster.silhouette(mesh.vertices, mesh.faces, template.T_cam_model, template.K, template.mask.shape)
         outline = template.mask ^ cv2.erode(template.mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
         outline |= cv2.dilate(template.mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~template.mask
         assert not ((mask != template.mask) & ~outline).any()

@@ -2,7 +2,7 @@
 
 One view layer, `main`: RGB, z-depth and object index. Depth and object index come from the pixel-centre
 ray, so they agree with each other and with OpenCV. The end-effector's occlusion-free silhouette (BOP's
-`mask`) is rasterised from its meshes (syneepose/ee_silhouette.py), no longer rendered by a second layer.
+`mask`) is its rigid model rasterised (segment.py), no longer rendered by a second layer.
 """
 
 from __future__ import annotations

@@ -6,12 +6,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
+from feepe import raster
 from kernel.bop import MAX_DEPTH, Frame, SceneMeta, SceneWriter
 from kernel.transforms import inv_T
 from syneepose.blender import scene as bscene
 from syneepose.colour import linear_to_srgb8
-from syneepose.ee_silhouette import EeSilhouette
 from syneepose.blender.stereo import IrRig
 from syneepose.ir_shading import Lighting
 from syneepose.robots.catalog import load_catalog
@@ -44,9 +45,10 @@ def build_scene(spec: SegmentSpec, render: RenderSettings, robot: Robot) -> bsce
     return bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
 
 
-def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scene_dir: Path, progress=None,
-                   settings: dict | None = None) -> int:
-    """Render the frames not yet on disk; returns how many were rendered. `settings`: what produced them
+def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, ee_mesh: trimesh.Trimesh, scene_dir: Path,
+                   progress=None, settings: dict | None = None) -> int:
+    """Render the frames not yet on disk; returns how many were rendered. `ee_mesh`: the end-effector's rigid
+    model (ee_models.load_ee_mesh), whose silhouette is each frame's `mask`. `settings`: what produced them
     (jobs.job_settings), recorded in scene_robot.json; frames of other settings are refused."""
     sensor = load_profile(render.sensor, render.sensor_render) if render.depth != "exact" else None
     writer = SceneWriter(Path(scene_dir), SceneMeta(
@@ -61,7 +63,7 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scen
     if not todo:
         return 0
     objects = build_scene(spec, render, robot)
-    silhouette = EeSilhouette(robot.model, robot.urdf.parent, set(robot.ee_links))
+    ee_vertices, ee_faces = np.asarray(ee_mesh.vertices, float), np.asarray(ee_mesh.faces, np.int64)
     board = bscene.add_board(spec.marker) if spec.marker is not None else None
     movers = bscene.add_occluders(spec.occluders)
     rig = None
@@ -80,12 +82,14 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, scen
         out = bscene.render(Path(scene_dir))
         depth = np.where(out["depth"] < MAX_DEPTH, out["depth"], 0.0)  # Cycles writes 1e10 where a ray hits nothing
         mask_visib = out["index"] == bscene.PASS_EE
-        # where the end-effector is seen it is in its silhouette: the raster and Cycles can part on a pixel
-        # centre that lies on an edge (2 pixels of 107,383 over 72 mini frames), and BOP's mask holds mask_visib
-        mask = silhouette.mask(T_base_link, T_cam_base, spec.K, mask_visib.shape) | mask_visib
+        T_cam_ee = T_cam_base @ T_base_link[robot.ee_root]
+        # the occlusion-free mask is rasterised, no longer a Cycles layer (issue 36); where the end-effector is
+        # seen it is in its silhouette: the raster and Cycles can part on a pixel centre that lies on an edge
+        # (2 pixels of 107,383 over 72 mini frames), and BOP's mask holds mask_visib
+        mask = raster.silhouette(ee_vertices, ee_faces, T_cam_ee, spec.K, mask_visib.shape) | mask_visib
         frame = Frame(
             im_id=i, rgb=linear_to_srgb8(out["rgb_linear"]), depth=depth, mask=mask, mask_visib=mask_visib,
-            K=spec.K, T_cam_ee=T_cam_base @ T_base_link[robot.ee_root], joint_positions=q,
+            K=spec.K, T_cam_ee=T_cam_ee, joint_positions=q,
             T_base_ee=T_base_link[robot.ee_root], link_ids=objects.link_ids(out["index"]))
         if rig is not None:
             frame = _with_sensor_depth(frame, rig, spec, render, Path(scene_dir))
