@@ -14,14 +14,13 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from feepe import raster
 from kernel.bop import MAX_DEPTH, Frame, SceneMeta, SceneWriter
 from kernel.transforms import inv_T
 from syneepose import paths
 from syneepose.blender import scene as bscene
 from syneepose.blender.exr import read_passes
 from syneepose.colour import linear_to_srgb8
-from syneepose.blender.segment import build_scene
+from syneepose.blender.segment import build_scene, ee_mask
 from syneepose.preset import load_preset
 from syneepose.robots.ee_models import load_ee_mesh
 from syneepose.robots.robot import load_robot
@@ -68,7 +67,7 @@ def main() -> None:
             t3 = time.perf_counter()
             visib = np.rint(passes[f"{bscene.MAIN}.Object Index"]) == bscene.PASS_EE
             T_cam_ee = inv_T(spec.T_base_cam) @ T_base_link[robot.ee_root]
-            ee = raster.silhouette(mesh.vertices, mesh.faces, T_cam_ee, spec.K, visib.shape) | visib
+            ee = ee_mask(mesh.vertices, mesh.faces, T_cam_ee, spec.K, visib)
             t4 = time.perf_counter()
             depth = passes[f"{bscene.MAIN}.Depth"]
             writer.write(Frame(im_id=int(i), rgb=linear_to_srgb8(passes[f"{bscene.MAIN}.Combined"][..., :3]),

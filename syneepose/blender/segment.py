@@ -45,6 +45,15 @@ def build_scene(spec: SegmentSpec, render: RenderSettings, robot: Robot) -> bsce
     return bscene.RobotObjects(robot.model, robot.urdf.parent, set(robot.ee_links))
 
 
+def ee_mask(vertices: np.ndarray, faces: np.ndarray, T_cam_ee: np.ndarray, K: np.ndarray,
+            mask_visib: np.ndarray) -> np.ndarray:
+    """BOP's `mask`, the end-effector's occlusion-free silhouette: rasterised, no longer a Cycles layer (issue 36).
+    Where the end-effector is seen it is in its silhouette: the raster and Cycles can part on a pixel centre
+    that lies on an edge (16 of the 428,227 silhouette pixels of the 288 mini frames), and BOP's mask holds
+    mask_visib."""
+    return raster.silhouette(vertices, faces, T_cam_ee, K, mask_visib.shape) | mask_visib
+
+
 def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, ee_mesh: trimesh.Trimesh, scene_dir: Path,
                    progress=None, settings: dict | None = None) -> int:
     """Render the frames not yet on disk; returns how many were rendered. `ee_mesh`: the end-effector's rigid
@@ -83,10 +92,7 @@ def render_segment(spec: SegmentSpec, render: RenderSettings, robot: Robot, ee_m
         depth = np.where(out["depth"] < MAX_DEPTH, out["depth"], 0.0)  # Cycles writes 1e10 where a ray hits nothing
         mask_visib = out["index"] == bscene.PASS_EE
         T_cam_ee = T_cam_base @ T_base_link[robot.ee_root]
-        # the occlusion-free mask is rasterised, no longer a Cycles layer (issue 36); where the end-effector is
-        # seen it is in its silhouette: the raster and Cycles can part on a pixel centre that lies on an edge
-        # (2 pixels of 107,383 over 72 mini frames), and BOP's mask holds mask_visib
-        mask = raster.silhouette(ee_vertices, ee_faces, T_cam_ee, spec.K, mask_visib.shape) | mask_visib
+        mask = ee_mask(ee_vertices, ee_faces, T_cam_ee, spec.K, mask_visib)
         frame = Frame(
             im_id=i, rgb=linear_to_srgb8(out["rgb_linear"]), depth=depth, mask=mask, mask_visib=mask_visib,
             K=spec.K, T_cam_ee=T_cam_ee, joint_positions=q,

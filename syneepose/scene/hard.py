@@ -11,7 +11,7 @@ import trimesh
 from kernel.transforms import axis_angle_to_R, inv_T, make_T, transform_points
 from syneepose.colour import srgb_to_linear
 from syneepose.preset import ArmColoured, Exit, Occluder as OccluderSettings, Preset
-from syneepose.scene.motion import in_image
+from syneepose.scene.motion import IN_VIEW, in_image
 from syneepose.scene.sample import MAX_PLACEMENTS, random_surface, uniform
 from syneepose.scene.spec import Distractor, Occluder, SegmentSpec, Surface
 
@@ -56,7 +56,7 @@ def turned_away(spec: SegmentSpec, points_base: np.ndarray, out: np.ndarray, wid
         T = spec.T_base_cam @ make_T(R)
         p_cam = transform_points(inv_T(T), points_base.reshape(-1, 3)).reshape(points_base.shape)
         inside = in_image(p_cam, spec.K, width, height, margin).mean(-1)
-        if np.all(inside[keep] >= 0.999) and np.all(inside[out] == 0.0):
+        if np.all(inside[keep] >= IN_VIEW) and np.all(inside[out] == 0.0):
             return T
     return None
 

@@ -10,6 +10,8 @@ from kernel.camera import project
 from kernel.transforms import inv_T, transform_points
 from syneepose.robots.model import read_urdf
 
+IN_VIEW = 0.999  # a frame holds the end-effector in the image when this share of its surface points lies inside
+
 
 def min_jerk(s: np.ndarray) -> np.ndarray:
     """0 -> 1 with zero velocity and acceleration at both ends (monotone, so limits hold)."""
@@ -103,14 +105,14 @@ class MotionChecks:
 
     def accepts(self, q: np.ndarray, T_base_cam: np.ndarray, K: np.ndarray, width: int, height: int, margin: float,
                 min_visible: float, frames: np.ndarray) -> bool:
-        """`check`'s verdict on the `frames` (a mask): every point inside the image (up to 0.1 %) and at least
+        """`check`'s verdict on the `frames` (a mask): IN_VIEW of the points inside the image and at least
         `min_visible` unoccluded. The same verdict, number for number, at a fraction of the cost: the image test
         of every frame before any ray is cast, and the casting stopped at the first frame that fails (planning
         rejects most cameras; `check` cast rays for all 16 frames of each, 0.3 s)."""
         poses = self.robot.T_base_link(q)
         T_cam_base = inv_T(T_base_cam)
         kept = np.flatnonzero(frames)
-        if not all(self._inside(poses, T_cam_base, i, self.points, K, width, height, margin).mean() >= 0.999
+        if not all(self._inside(poses, T_cam_base, i, self.points, K, width, height, margin).mean() >= IN_VIEW
                    for i in kept):
             return False
         return all(self._seen_at(poses, T_cam_base, i, self.hulls, self.points, K, width, height, margin)[1]

@@ -17,7 +17,7 @@ from kernel.errors import UserError
 from kernel.transforms import inv_T, rotation_angle, transform_points
 from syneepose.preset import Preset
 from syneepose.scene.marker import MarkerBoard, board_from_preset, board_pose, facing
-from syneepose.scene.motion import MotionChecks
+from syneepose.scene.motion import IN_VIEW, MotionChecks
 from syneepose.scene.sample import rng_for, sample_segment
 from syneepose.scene.spec import SegmentSpec
 
@@ -65,7 +65,7 @@ def plan_stations(preset: Preset, robot, checks: MotionChecks, stream: int, seed
                                    ee_occludes=True)
         keep = keep[(inside >= 1.0) & (seen >= 1.0)]
         inside, visible = checks.check(pool[keep], spec.T_base_cam, spec.K, width, height, margin)
-        keep = keep[(inside >= 0.999) & (visible >= min_visible)]
+        keep = keep[(inside >= IN_VIEW) & (visible >= min_visible)]
         if len(keep) < n_frames:
             continue
         R = robot.T_base_ee(pool[keep])[:, :3, :3]
