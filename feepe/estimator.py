@@ -419,10 +419,11 @@ class Estimator:
         """The robot found again in this frame's depth (feepe/registration.py); every hypothesis so far and
         the new ones scored by their depth agreement on this frame, borne out by the colour across their outline
         (on the coarse grid: the hypotheses are a centimetre or so off before any refinement, and an offset
-        of three coarse pixels spans that), summed over the frames seen. `model`: the
-        robot's surface samples placed by this frame's joint states (base frame)."""
+        of three coarse pixels spans that), summed over the frames seen; from the second frame on, the nearest
+        parts of the scene are searched too (the whole scene failed the first). `model`: the robot's surface
+        samples placed by this frame's joint states (base frame)."""
         known = [h[0] for h in self._hypotheses]
-        for T in register(model, depth, K, seed=self.frame):
+        for T in register(model, depth, K, seed=self.frame, near=self.frame > 0):
             if is_new(T, known):
                 self._hypotheses.append([T, 0.0])
                 known.append(T)

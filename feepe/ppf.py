@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numba
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from feepe.depth import normal_map
@@ -66,16 +67,22 @@ def _to_x_axis(normals: np.ndarray) -> np.ndarray:
 
 
 class PpfDetector:
-    def __init__(self, model: SurfaceModel, opts: PpfOptions | None = None):
+    def __init__(self, model: SurfaceModel, opts: PpfOptions | None = None, reach: float | None = None):
+        """`reach`: the longest point pair of the model and the scene (m; default the model's diameter). A scene
+        part known to span less holds no longer pair, and the model's table shrinks with its square."""
         self.opts = opts or PpfOptions()
         self.surface = model
         extent = model.points.max(0) - model.points.min(0)
         self.diameter = float(np.linalg.norm(extent))
+        self.reach = self.diameter if reach is None else min(float(reach), self.diameter)
         self.step = self.opts.sampling * self.diameter
         self.points, self.normals = voxel_sample(model.points, model.normals, self.step)
         self.R_ref = _to_x_axis(self.normals)
-        n = len(self.points)
-        i, j = np.nonzero(~np.eye(n, dtype=bool))
+        if reach is None:
+            i, j = np.nonzero(~np.eye(len(self.points), dtype=bool))
+        else:
+            pairs = cKDTree(self.points).query_pairs(self.reach, output_type="ndarray")
+            i, j = np.concatenate([pairs[:, 0], pairs[:, 1]]), np.concatenate([pairs[:, 1], pairs[:, 0]])
         keys, alpha = self._pairs(self.points, self.normals, self.R_ref, i, j)
         order = np.argsort(keys, kind="stable")
         self.keys, self.ref, self.alpha = keys[order], i[order], alpha[order]
@@ -100,7 +107,7 @@ class PpfDetector:
         if self.opts.max_references:
             step = max(step, -(-len(points) // self.opts.max_references))
         refs = np.arange(0, len(points), step)
-        best = _vote(points, normals, R_scene, refs, self.diameter, self.keys, self.ref, self.alpha, len(self.points),
+        best = _vote(points, normals, R_scene, refs, self.reach, self.keys, self.ref, self.alpha, len(self.points),
                      self.step, self.opts.angle_bins)
         out = []
         for r, (votes, m, b) in zip(refs, best):
@@ -194,8 +201,8 @@ def _pair_key(p, n, q, m, R, step, bins):
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _vote(S, SN, SR, refs, diameter, keys, ref, alpha, n_model, step, bins):
-    """Drost's voting, each reference point on its own: every scene point within the model's diameter forms a
+def _vote(S, SN, SR, refs, reach, keys, ref, alpha, n_model, step, bins):
+    """Drost's voting, each reference point on its own: every scene point within `reach` (the model's diameter) forms a
     pair with it, every model pair of the same key votes for (model point, angle); (votes, model point, angle
     bin) of its peak, votes 0 when nothing voted. Reference points run on both cores."""
     out = np.zeros((refs.shape[0], 3), np.int64)
@@ -204,7 +211,7 @@ def _vote(S, SN, SR, refs, diameter, keys, ref, alpha, n_model, step, bins):
         acc = np.zeros(n_model * bins + 1, np.int64)  # + 1: a turn that rounds up to 2 pi lands past the end
         for j in range(S.shape[0]):
             dx, dy, dz = S[j, 0] - S[r, 0], S[j, 1] - S[r, 1], S[j, 2] - S[r, 2]
-            if j == r or dx * dx + dy * dy + dz * dz > diameter * diameter:
+            if j == r or dx * dx + dy * dy + dz * dz > reach * reach:
                 continue
             key, a_scene = _pair_key(S[r], SN[r], S[j], SN[j], SR[r], step, bins)
             for t in range(np.searchsorted(keys, key), np.searchsorted(keys, key + 1)):

@@ -4,7 +4,11 @@ forward kinematics of the frame's joint positions, found in the frame's depth.
 The depth shows the robot among the floor, walls and objects. The large planes are set aside (RANSAC), the
 robot's surface samples are found among the remaining points by point-pair-feature voting (Drost et al.
 2010, feepe/ppf.py; the robot stands still in its base frame for this one frame, so it is one rigid
-object), and each of the best pose clusters is refined by point-to-plane ICP. The hypotheses are then judged
+object), and each of the best pose clusters is refined by point-to-plane ICP. A robot seen close covers few of
+those voxels (a UR10e's wrist at 0.6 m: 54 of 5,807 scene points, behind walls whose stereo depth strays by
+tens of centimetres); once the whole scene has been searched in vain, the nearest of its connected parts are
+searched again on their own at half the voxel, as Birdal and Ilic (3DV 2015) vote within scene segments. The
+hypotheses are then judged
 on the depth image itself: a calibration under which the model's rendered depth agrees with the sensor's
 explains those pixels, one under which the sensor sees far behind the model's surface is contradicted
 there (free space seen through a robot that would stand in the way). Depth alone can be fooled where a wall or
@@ -18,6 +22,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from feepe.depth import normal_map
 from feepe.icp import PlaneTerm, SurfaceModel, associate
@@ -33,6 +40,15 @@ PPF = PpfOptions(sampling=0.04, scene_step=1, max_references=1000, hypotheses=24
 # Python loop (0.7-2.3 s a frame on 12 stereo segments, 6.7 s with 3920 scene points); since that loop went
 # (c1c4a28) it is the larger part: 0.47 s a call against 0.32 s for voting and clustering (cProfile, two seed-29
 # stereo segments)
+NEAR_PPF = PpfOptions(sampling=0.02, scene_step=1, max_references=1000, hypotheses=4)  # the near pass: half the
+# voxel, each part's 4 best clusters. At the first frames of 52 stereo segments (nine renders) the whole-scene
+# search held no hypothesis within 3 cm and 3 deg of the truth on 11 (4 with the arm out of view, 4 on seed 29's
+# path-traced IR that later frames find); this pass holds one for 2 (seed-53 scene 13, seed-29 splatted scene 11),
+# at 1-4 s a frame (0.4-1.3 s for the whole scene), hence only after the whole scene failed
+NEAR_PARTS = 3  # the connected parts searched again, nearest first (median depth): a camera watching a robot
+# mostly sees it in front of its background
+NEAR_PART_POINTS = 20  # a part of fewer scene points is noise
+PART_LINK_STEPS = 1.5  # scene points closer than this many voxels are one part
 PLANE_TOL_M = 0.015  # scene points this close to a large plane belong to it, or within PLANE_TOL_SIGMAS
 PLANE_TOL_SIGMAS = 3.0  # of a stereo camera's noise at their depth: sigma(z) = 2 mm + 0.0036 z^2 (Intel's D435
 # RMS model, as feepe.estimator's depth_sigma_*): 1.5 cm holds exact depth's floor, not a stereo floor at 3 m
@@ -93,16 +109,47 @@ def scene_points(depth: np.ndarray, K: np.ndarray, voxel_m: float, rng: np.rando
     return points[keep], normals[keep]
 
 
-def register(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 0) -> list[np.ndarray]:
-    """T_cam_base hypotheses for the robot whose base-frame surface samples are `model`, strongest vote first,
-    each refined by ICP on the scene's points; [] when the depth holds too little."""
+def parts(points: np.ndarray, link_m: float) -> np.ndarray:
+    """Each point's connected part: points closer than link_m are joined."""
+    pairs = cKDTree(points).query_pairs(link_m, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
+    return connected_components(graph, directed=False)[1]
+
+
+def near_hypotheses(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, points: np.ndarray,
+                    step: float) -> list[np.ndarray]:
+    """Unrefined T_cam_base hypotheses from the NEAR_PARTS nearest parts of the scene `points` (sampled at
+    `step`), each part's depth sampled again at NEAR_PPF's finer voxel and searched on its own."""
+    label = parts(points, PART_LINK_STEPS * step)
+    big = np.flatnonzero(np.bincount(label) >= NEAR_PART_POINTS)
+    nearest = big[np.argsort([np.median(points[label == i, 2]) for i in big])][:NEAR_PARTS]
+    normals, valid = normal_map(depth, K)
+    fine_step = NEAR_PPF.sampling / PPF.sampling * step
+    fine, fine_normals = voxel_sample(point_map(depth, K)[valid], normals[valid], fine_step)
+    distance, index = cKDTree(points).query(fine, distance_upper_bound=step)
+    fine_label = np.where(np.isfinite(distance), label[np.minimum(index, len(points) - 1)], -1)
+    chosen = [c for c in (fine_label == i for i in nearest) if c.sum() >= NEAR_PART_POINTS]
+    if not chosen:
+        return []
+    detector = PpfDetector(model, NEAR_PPF, reach=max(np.linalg.norm(np.ptp(fine[c], axis=0)) for c in chosen))
+    return [T for c in chosen for T in detector.hypotheses(fine[c], fine_normals[c])]
+
+
+def register(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 0,
+             near: bool = False) -> list[np.ndarray]:
+    """T_cam_base hypotheses for the robot whose base-frame surface samples are `model`, strongest vote first
+    (then, with `near`, those of the nearest parts), each refined by ICP on the scene's points; [] when the
+    depth holds too little."""
     detector = PpfDetector(model, PPF)
     points, normals = scene_points(depth, K, detector.step, np.random.default_rng(seed))
     if len(points) < 10:
         return []
+    starts = detector.hypotheses(points, normals)
+    if near:
+        starts += near_hypotheses(model, depth, K, points, detector.step)
     no_matches = stack([])
     out = []
-    for T in detector.hypotheses(points, normals):
+    for T in starts:
         for gate in np.linspace(*ICP_GATES_M, ICP_ROUNDS):
             planes = associate(T, [(np.eye(4), points)], model, gate)
             if len(planes.target_cam) < 6:
