@@ -52,12 +52,7 @@ ACCEPT_MIN_SHARE = 0.04  # and its depth pixels to cover this share of the image
 # metre off, placing another link there (accepted at 1.4 % and 2.2 %; plain seed-23 segments first at 7-23 %)
 ACCEPT_UNHIDDEN = 0.5  # nothing to hide at least this share of them
 ACCEPT_SEEN_THROUGH = 0.15  # and no more than this share seen through
-ACCEPT_CONTRAST = 0.9  # and the image's colour to change across this share of its outline (registration.py). At
-# the true calibration 0.955-1.00 (95 tests at the first frames of 12 stereo renders, 2026-11-29; 96-100 % in 30
-# segments before), the accepted starts 0.92-1.00; a UR5e 27 cm and 23 deg off passed 0.8 at 0.87 (held-out seed
-# 59 scene 8) and stayed wrong for 15 frames
-ACCEPT_CONTRAST_RGB = 0.8  # RGB only: the motion chooses the hypothesis and the colour confirms it; the bar at
-# which the RGB-only figures were measured
+ACCEPT_CONTRAST = 0.8  # and the image's colour to change across this share of its outline (registration.py)
 MOTION_MIN_FRAMES = 8  # RGB only, no mask: the robot is first searched for by its motion once this many frames are
 # seen (feepe/motion.py; frames 0 and 1 of a mini segment differ on 2 % of the pixels, frames 0 and 7 on a quarter)
 MOTION_EVERY = 4  # and again every this many frames until a calibration is accepted
@@ -489,7 +484,7 @@ class Estimator:
         frame's colours across its outline."""
         if has_depth:
             return _explains_frame(self.parts, T_cam_base, T_base_parts, rgb, depth, K, seen.view.inside > 0)
-        return (bool(self._hypotheses) and outline_contrast(seen.view.inside > 0, rgb) >= ACCEPT_CONTRAST_RGB
+        return (bool(self._hypotheses) and outline_contrast(seen.view.inside > 0, rgb) >= ACCEPT_CONTRAST
                 and MotionFit(self._clip).score(T_cam_base) >= MOTION_KEPT * self._hypotheses[0][1])
 
     def _refresh_key_frames(self, T: np.ndarray) -> None:
