@@ -43,8 +43,9 @@ PPF = PpfOptions(sampling=0.04, scene_step=1, max_references=1000, hypotheses=24
 NEAR_PPF = PpfOptions(sampling=0.02, scene_step=1, max_references=1000, hypotheses=4)  # the near pass: half the
 # voxel, each part's 4 best clusters. At the first frames of 52 stereo segments (nine renders) the whole-scene
 # search held no hypothesis within 3 cm and 3 deg of the truth on 11 (4 with the arm out of view, 4 on seed 29's
-# path-traced IR that later frames find); this pass holds one for 2 (seed-53 scene 13, seed-29 splatted scene 11),
-# at 1-4 s a frame (0.4-1.3 s for the whole scene), hence only after the whole scene failed
+# path-traced IR that later frames find); this pass holds one for 2 (seed-53 scene 13, seed-29 splatted scene 11).
+# It costs 0.1-3.5 s a frame more than the whole scene's 0.3-1.5 s (18 first frames of three renders, in-process,
+# alone), hence only once the whole scene has failed
 NEAR_PARTS = 3  # the connected parts searched again, nearest first (median depth): a camera watching a robot
 # mostly sees it in front of its background
 NEAR_PART_POINTS = 20  # a part of fewer scene points is noise
