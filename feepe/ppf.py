@@ -69,7 +69,7 @@ def _to_x_axis(normals: np.ndarray) -> np.ndarray:
 class PpfDetector:
     def __init__(self, model: SurfaceModel, opts: PpfOptions | None = None, reach: float | None = None):
         """`reach`: the longest point pair of the model and the scene (m; default the model's diameter). A scene
-        part known to span less holds no longer pair, and the model's table shrinks with its square."""
+        part known to span less holds no longer pair, and the model's table shrinks with it."""
         self.opts = opts or PpfOptions()
         self.surface = model
         extent = model.points.max(0) - model.points.min(0)
@@ -202,9 +202,9 @@ def _pair_key(p, n, q, m, R, step, bins):
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _vote(S, SN, SR, refs, reach, keys, ref, alpha, n_model, step, bins):
-    """Drost's voting, each reference point on its own: every scene point within `reach` (the model's diameter) forms a
-    pair with it, every model pair of the same key votes for (model point, angle); (votes, model point, angle
-    bin) of its peak, votes 0 when nothing voted. Reference points run on both cores."""
+    """Drost's voting, each reference point on its own: every scene point within `reach` (Drost: the model's
+    diameter) forms a pair with it, every model pair of the same key votes for (model point, angle); (votes,
+    model point, angle bin) of its peak, votes 0 when nothing voted. Reference points run on both cores."""
     out = np.zeros((refs.shape[0], 3), np.int64)
     for q in numba.prange(refs.shape[0]):
         r = refs[q]
