@@ -102,10 +102,16 @@ def background_planes(points: np.ndarray, rng: np.random.Generator) -> np.ndarra
     return on_plane
 
 
-def scene_points(depth: np.ndarray, K: np.ndarray, voxel_m: float, rng: np.random.Generator):
-    """The depth's points and camera-facing normals, one per voxel, without the large planes."""
+def depth_cloud(depth: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every pixel's point and camera-facing normal where the depth has both (camera frame): what the whole
+    scene's search and the near pass sample, each at its own voxel."""
     normals, valid = normal_map(depth, K)
-    points, normals = voxel_sample(point_map(depth, K)[valid], normals[valid], voxel_m)
+    return point_map(depth, K)[valid], normals[valid]
+
+
+def scene_points(cloud: tuple[np.ndarray, np.ndarray], voxel_m: float, rng: np.random.Generator):
+    """The depth_cloud's points and normals, one per voxel, without the large planes."""
+    points, normals = voxel_sample(*cloud, voxel_m)
     keep = ~background_planes(points, rng)
     return points[keep], normals[keep]
 
@@ -117,16 +123,14 @@ def parts(points: np.ndarray, link_m: float) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def near_hypotheses(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, points: np.ndarray,
+def near_hypotheses(model: SurfaceModel, cloud: tuple[np.ndarray, np.ndarray], points: np.ndarray,
                     step: float) -> list[np.ndarray]:
-    """Unrefined T_cam_base hypotheses from the NEAR_PARTS nearest parts of the scene `points` (sampled at
-    `step`), each part's depth sampled again at NEAR_PPF's finer voxel and searched on its own."""
+    """Unrefined T_cam_base hypotheses from the NEAR_PARTS nearest parts of the scene `points` (the depth
+    `cloud` sampled at `step`), each part sampled again at NEAR_PPF's finer voxel and searched on its own."""
     label = parts(points, PART_LINK_STEPS * step)
     big = np.flatnonzero(np.bincount(label) >= NEAR_PART_POINTS)
     nearest = big[np.argsort([np.median(points[label == i, 2]) for i in big])][:NEAR_PARTS]
-    normals, valid = normal_map(depth, K)
-    fine_step = NEAR_PPF.sampling / PPF.sampling * step
-    fine, fine_normals = voxel_sample(point_map(depth, K)[valid], normals[valid], fine_step)
+    fine, fine_normals = voxel_sample(*cloud, NEAR_PPF.sampling / PPF.sampling * step)
     distance, index = cKDTree(points).query(fine, distance_upper_bound=step)
     fine_label = np.where(np.isfinite(distance), label[np.minimum(index, len(points) - 1)], -1)
     chosen = [c for c in (fine_label == i for i in nearest) if c.sum() >= NEAR_PART_POINTS]
@@ -142,12 +146,13 @@ def register(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 
     (then, with `near`, those of the nearest parts), each refined by ICP on the scene's points; [] when the
     depth holds too little."""
     detector = PpfDetector(model, PPF)
-    points, normals = scene_points(depth, K, detector.step, np.random.default_rng(seed))
+    cloud = depth_cloud(depth, K)
+    points, normals = scene_points(cloud, detector.step, np.random.default_rng(seed))
     if len(points) < 10:
         return []
     starts = detector.hypotheses(points, normals)
     if near:
-        starts += near_hypotheses(model, depth, K, points, detector.step)
+        starts += near_hypotheses(model, cloud, points, detector.step)
     no_matches = stack([])
     out = []
     for T in starts:

@@ -10,8 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from feepe import raster
 from feepe.icp import SurfaceModel
-from feepe.registration import (CONTRAST_RGB, PPF, background_planes, depth_fit, is_new, near_hypotheses,
-                                outline_contrast, parts, register, scene_points)
+from feepe.registration import (CONTRAST_RGB, PPF, background_planes, depth_cloud, depth_fit, is_new,
+                                near_hypotheses, outline_contrast, parts, register, scene_points)
 from feepe.robot_starts import RobotSamples
 from feepe.segmentation import ColourModel, segment, trust
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, iou
@@ -117,8 +117,9 @@ def test_an_arm_seen_close_before_a_far_straying_background_is_found_in_the_near
     depth = np.where(depth > 0, depth + rng.normal(0, 0.002, SHAPE) + np.where(robot > 0, 0.0, stray), 0.0)
     model = SurfaceModel(*RobotSamples.of([p.mesh for p in arm.parts]).placed(np.repeat(np.eye(4)[None], 4, 0)))
     step = PPF.sampling * np.linalg.norm(np.ptp(model.points, axis=0))
-    points, _ = scene_points(depth, K, step, np.random.default_rng(0))
-    found = near_hypotheses(model, depth, K, points, step)
+    cloud = depth_cloud(depth, K)
+    points, _ = scene_points(cloud, step, np.random.default_rng(0))
+    found = near_hypotheses(model, cloud, points, step)
     assert any(np.linalg.norm(U[:3, 3] - T[:3, 3]) < 0.03 and np.degrees(rotation_angle(U[:3, :3], T[:3, :3])) < 3
                for U in found)
 
