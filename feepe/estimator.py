@@ -504,7 +504,7 @@ class Estimator:
         return SURE if explains else FAILS
 
     def _start(self) -> np.ndarray | None:
-        """What this frame refines: the calibration accepted, else the start passing the last frames (it goes on
+        """What this frame refines: the calibration accepted, else the start kept from the last frame (it goes on
         being refined as frames arrive), else the best hypothesis."""
         if self.T_cam_base is not None:
             return self.T_cam_base

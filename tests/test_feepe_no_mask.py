@@ -346,8 +346,8 @@ def test_with_no_mask_frames_before_the_first_calibration_are_refined_alone(tiny
 
 
 @pytest.mark.parametrize("kept_score", [0.9, 10.0])
-def test_a_first_calibration_short_of_the_sure_bars_is_taken_only_once_a_frame_settles_it(tiny_dataset, monkeypatch,
-                                                                                          kept_score):
+def test_a_first_calibration_short_of_the_sure_bars_waits_for_a_frame_that_bears_it_out(tiny_dataset, monkeypatch,
+                                                                                        kept_score):
     """A first calibration that passes the acceptance tests without clearing the higher bars (here raised past
     any start) is not returned on its frame: it is the next frame's start, taken on a frame that scores it, before
     its refinement there, at KEPT_SCORE of that refinement's score; with the share out of reach (10) never."""
