@@ -390,18 +390,18 @@ class Estimator:
             T_new, score, n_keys = self._estimate(found, T_base_ee, timings, prior=T)
             timings["optimisation"] = 1e3 * (time.perf_counter() - t0) - timings.get("refinement", 0.0)
             seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
-            verdict = SURE if self.T_cam_base is not None else self._explains(T_new, T_base_parts, rgb, depth, K,
-                                                                              seen, has_depth)
-            for _ in range(START_ROUNDS):
-                if verdict != FAILS:
-                    break
-                T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
-                seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
-                if self._explains(T_new, T_base_parts, rgb, depth, K, seen, has_depth) != FAILS:
-                    verdict = PASSES if has_depth else SURE  # depth: judged at the segmentation it was just
-                    # fitted to, so later frames confirm it (RGB only: the motion over the clip judged it)
-            accepted = self.T_cam_base is not None or self._accepts(verdict, T_start, T_new, found.parts, rgb, depth,
-                                                                   K)
+            accepted = self.T_cam_base is not None
+            if not accepted:
+                verdict = self._explains(T_new, T_base_parts, rgb, depth, K, seen, has_depth)
+                for _ in range(START_ROUNDS):
+                    if verdict != FAILS:
+                        break
+                    T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
+                    seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
+                    if self._explains(T_new, T_base_parts, rgb, depth, K, seen, has_depth) != FAILS:
+                        verdict = PASSES if has_depth else SURE  # depth: judged at the segmentation it was just
+                        # fitted to, so later frames confirm it (RGB only: the motion over the clip judged it)
+                accepted = self._accepts(verdict, T_start, T_new, found.parts, rgb, depth, K)
             if accepted and self.T_cam_base is None and self._waiting:
                 T_new, seen = self._settled(T_new, T_base_ee, rgb, depth, K, found, timings)
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found), need_candidates=False)

@@ -201,6 +201,14 @@ def _no_mask_estimator(tiny_dataset, scene, given_masks: str = "truth"):
     return est, meta, ids, robot, links
 
 
+def _joint_states(robot, links, frame):
+    """What the estimator reads of the robot with no mask: each arm link's pose by the frame's joint states."""
+    from feepe.estimator import RobotView
+
+    T_base_link = robot.T_base_link(frame.joint_positions)
+    return RobotView(None, np.stack([T_base_link[n] for n in links]))
+
+
 @pytest.mark.parametrize("given", [None, "sam"])
 def test_with_no_mask_the_estimator_finds_the_robot_and_makes_its_masks(tiny_dataset, given):
     """A rendered segment (160x120, exact depth) with no mask of any kind, or with masks perturbed as a
@@ -230,16 +238,13 @@ def test_with_no_mask_the_estimator_finds_the_robot_and_makes_its_masks(tiny_dat
 
 def test_with_no_mask_a_frame_without_the_robot_is_no_estimate(tiny_dataset):
     """Where the depth shows no robot (a blank wall), the estimator says it has nothing, not a wild guess."""
-    from feepe.estimator import RobotView
     from kernel.bop import read_frame
 
     scene = sorted((tiny_dataset / "test").iterdir())[0]
     est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
     f = read_frame(scene, ids[0])
-    T_base_link = robot.T_base_link(f.joint_positions)
     wall = np.full(f.depth.shape, 1.5)
-    r = est.step(np.full_like(f.rgb, 128), wall, None, f.K, f.T_base_ee,
-                 RobotView(None, np.stack([T_base_link[n] for n in links])))
+    r = est.step(np.full_like(f.rgb, 128), wall, None, f.K, f.T_base_ee, _joint_states(robot, links, f))
     assert r.T_cam_base is None and r.T_cam_ee is None and r.masks is None
 
 
@@ -325,15 +330,13 @@ def test_a_dark_image_tells_the_outline_as_a_bright_one_does():
 def test_with_no_mask_frames_before_the_first_calibration_are_refined_alone(tiny_dataset):
     """Frames whose hypotheses are not accepted (here: a grey image, so no colour bears any outline out) enter
     the memory but are not refined over: each is refined alone, and the first accepted frame as well."""
-    from feepe.estimator import RobotView
     from kernel.bop import read_frame
 
     scene = sorted((tiny_dataset / "test").iterdir())[0]
     est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
 
     def step(f, rgb):
-        T_base_link = robot.T_base_link(f.joint_positions)
-        return est.step(rgb, f.depth, None, f.K, f.T_base_ee, RobotView(None, np.stack([T_base_link[n] for n in links])))
+        return est.step(rgb, f.depth, None, f.K, f.T_base_ee, _joint_states(robot, links, f))
 
     for i in ids[:3]:
         f = read_frame(scene, i)
@@ -352,7 +355,6 @@ def test_a_first_calibration_short_of_the_sure_bars_waits_for_a_frame_that_bears
     any start) is not returned on its frame: it is the next frame's start, taken on a frame that scores it, before
     its refinement there, at KEPT_SCORE of that refinement's score; with the share out of reach (10) never."""
     import feepe.estimator as estimator
-    from feepe.estimator import RobotView
     from kernel.bop import read_frame
 
     monkeypatch.setattr(estimator, "SURE_AGREE", 1.01)
@@ -362,8 +364,7 @@ def test_a_first_calibration_short_of_the_sure_bars_waits_for_a_frame_that_bears
     taken = []
     for i in ids[:4]:
         f = read_frame(scene, i)
-        T_base_link = robot.T_base_link(f.joint_positions)
-        r = est.step(f.rgb, f.depth, None, f.K, f.T_base_ee, RobotView(None, np.stack([T_base_link[n] for n in links])))
+        r = est.step(f.rgb, f.depth, None, f.K, f.T_base_ee, _joint_states(robot, links, f))
         taken.append(r.T_cam_base is not None)
         if r.T_cam_base is not None:
             dT = inv_T(meta.T_cam_base) @ r.T_cam_base
@@ -382,7 +383,6 @@ def test_rgb_only_the_robot_is_found_by_its_motion_and_never_wildly(tiny_dataset
     coarse pixels between frames, the search's best hypotheses lie decimetres off, and none passes the colour
     check across its outline: every frame is a no-estimate. The search itself is tested in test_feepe_motion.)"""
     import feepe.estimator as estimator
-    from feepe.estimator import RobotView
     from kernel.bop import read_frame
 
     monkeypatch.setattr(estimator, "MOTION_MIN_FRAMES", 4)
@@ -390,8 +390,7 @@ def test_rgb_only_the_robot_is_found_by_its_motion_and_never_wildly(tiny_dataset
     est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
     for n, i in enumerate(ids):
         f = read_frame(scene, i)
-        T_base_link = robot.T_base_link(f.joint_positions)
-        r = est.step(f.rgb, None, None, f.K, f.T_base_ee, RobotView(None, np.stack([T_base_link[k] for k in links])))
+        r = est.step(f.rgb, None, None, f.K, f.T_base_ee, _joint_states(robot, links, f))
         if n < 3:
             assert r.T_cam_base is None and r.masks is None and not est._hypotheses, i
         else:
