@@ -204,7 +204,8 @@ class RobotView:
 class FrameResult:
     T_cam_ee: np.ndarray | None  # None: no estimate for this frame
     T_cam_base: np.ndarray | None
-    score: float  # current-frame matches consistent with the final pose
+    score: float  # current-frame matches consistent with the final pose; with no mask given (the estimator's own
+    # segmentation), the robot model's mask IoU at the calibration against that segmentation of the frame
     n_candidates: int
     n_key_frames: int
     timings: dict  # ms per stage and "total"
@@ -337,8 +338,8 @@ class Estimator:
                        robot: RobotView | None, t_start: float, ee_mask: np.ndarray | None = None) -> FrameResult:
         """No mask: the robot is found in the first frames' depth (several hypotheses, judged as frames
         arrive) or, with no depth, by its motion over the first frames (feepe/motion.py), each frame is
-        segmented at the calibration so far, the template path crops the predicted end-effector, and the
-        robot's outline is fitted to the estimator's own segmentation. A frame before any hypothesis explains
+        segmented at the calibration so far, the template path crops the predicted end-effector until a
+        calibration is accepted, and the robot's outline is fitted to the estimator's own segmentation. A frame before any hypothesis explains
         its depth (or the motion and the frame's colours) well is a no-estimate."""
         if self._robot_samples is None:
             raise UserError("with no mask the estimator finds the robot itself: reset(arm=[SilhouetteModel(...), ...]) "
@@ -372,7 +373,10 @@ class Estimator:
                            self._depth_sigma, robot_mask=robot_mask, ee_mask=ee_mask)
             timings["segmentation"] = 1e3 * (time.perf_counter() - t0)
             self._refresh_key_frames(T)
-        found = frame_candidates(rgb, depth, seen.ee, K, self.bank, self.backbone, self.opts.single)
+        # once a calibration stands, the template path's starts never beat its warm refinement (four stereo
+        # development renders, every pose the same without it): it runs only until one is accepted
+        found = (frame_candidates(rgb, depth, seen.ee, K, self.bank, self.backbone, self.opts.single)
+                 if self.T_cam_base is None else None)
         if found is None:
             found = FrameCandidates(np.eye(3), [], 0, {})
         timings.update(found.timings)
@@ -387,7 +391,7 @@ class Estimator:
             self.centres.add(T_base_ee, observed_centre(depth, seen.ee, K))
         t0 = time.perf_counter()
         with _BLAS.limit(limits=1, user_api="blas"):
-            T_new, score, n_keys = self._estimate(found, T_base_ee, timings, prior=T)
+            T_new, _, n_keys = self._estimate(found, T_base_ee, timings, prior=T)
             timings["optimisation"] = 1e3 * (time.perf_counter() - t0) - timings.get("refinement", 0.0)
             seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
             accepted = self.T_cam_base is not None
@@ -410,6 +414,7 @@ class Estimator:
         if not accepted:
             return FrameResult(None, None, 0.0, len(found.candidates), n_keys, timings, masks=None)
         self.T_cam_base = T_new
+        score = mean_iou(self.parts, T_new, [(found.parts, found.silhouette)], IOU_STRIDE)
         return FrameResult(T_new @ T_base_ee, T_new, score, len(found.candidates), n_keys, timings,
                            masks={"ee": seen.ee, "robot": seen.robot})
 
