@@ -339,7 +339,8 @@ class Estimator:
         """No mask: the robot is found in the first frames' depth (several hypotheses, judged as frames
         arrive) or, with no depth, by its motion over the first frames (feepe/motion.py), each frame is
         segmented at the calibration so far, the template path crops the predicted end-effector until a
-        calibration is accepted, and the robot's outline is fitted to the estimator's own segmentation. A frame before any hypothesis explains
+        calibration is accepted, and the robot's outline is fitted to the estimator's own segmentation (on the
+        first frame refined, twice: once the colours are learned from the first fit). A frame before any hypothesis explains
         its depth (or the motion and the frame's colours) well is a no-estimate."""
         if self._robot_samples is None:
             raise UserError("with no mask the estimator finds the robot itself: reset(arm=[SilhouetteModel(...), ...]) "
@@ -391,9 +392,14 @@ class Estimator:
             self.centres.add(T_base_ee, observed_centre(depth, seen.ee, K))
         t0 = time.perf_counter()
         with _BLAS.limit(limits=1, user_api="blas"):
+            colourless = self.colour.fg is None
             T_new, _, n_keys = self._estimate(found, T_base_ee, timings, prior=T)
             timings["optimisation"] = 1e3 * (time.perf_counter() - t0) - timings.get("refinement", 0.0)
             seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
+            if colourless and self.colour.fg is not None:  # the first segmentation knew no colours: its outline
+                # was the prior's and the depth's; refined once more on the colours just learned from it
+                T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
+                seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
             accepted = self.T_cam_base is not None
             if not accepted:
                 verdict = self._explains(T_new, T_base_parts, rgb, depth, K, seen, has_depth)

@@ -397,3 +397,25 @@ def test_rgb_only_the_robot_is_found_by_its_motion_and_never_wildly(tiny_dataset
             assert est._hypotheses, i
         if r.T_cam_base is not None:
             assert np.linalg.norm((inv_T(meta.T_cam_base) @ r.T_cam_base)[:3, 3]) < 0.05, i
+
+
+def test_with_no_mask_the_first_estimate_is_refined_again_on_the_colours_learned_from_it(tiny_dataset, monkeypatch):
+    """The first frame's segmentation knows no colours (none are learned yet), so its outline is the prior's
+    and the depth's; the calibration returned for it was last refined on a segmentation that reads them."""
+    from feepe.estimator import Estimator
+    from kernel.bop import read_frame
+
+    scene = sorted((tiny_dataset / "test").iterdir())[0]
+    est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
+    knew_colours = []
+    refined = Estimator._refined
+
+    def recording(self, *args, **kwargs):
+        knew_colours.append(self.colour.fg is not None)
+        return refined(self, *args, **kwargs)
+
+    monkeypatch.setattr(Estimator, "_refined", recording)
+    f = read_frame(scene, ids[0])
+    r = est.step(f.rgb, f.depth, None, f.K, f.T_base_ee, _joint_states(robot, links, f))
+    assert r.T_cam_base is not None
+    assert knew_colours[0] is False and knew_colours[-1] is True
