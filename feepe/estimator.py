@@ -43,7 +43,7 @@ RENDERER = "zbuffer"  # how the refinement renders masks and tests outlines (fee
 CHOICE = "iou x scaled depth agreement"  # the refinement with depth picks among descents so (before: IoU alone)
 BAND_START_PX = 8.0  # no mask given: the segmentation's band around a calibration that is not yet refined
 BAND_MIN_PX = 2.0  # and around one just refined
-BAND_PER_PX = 3.0  # the next frame's band: this many times how far (px) the last refinement moved the robot
+BAND_PER_PX = 3.0  # the next frame's band: this many times how far (px) the frame's refinements moved the robot
 MAX_HYPOTHESES = 5  # no mask given: the registrations' hypotheses kept and judged as frames arrive
 ACCEPT_AGREE = 0.5  # no mask given: a first calibration needs this share of the robot's depth pixels that nothing
 # hides (the sensor not nearer than the model) to agree
@@ -398,13 +398,13 @@ class Estimator:
             colourless = self.colour.fg is None
             T_new, _, n_keys = self._estimate(found, T_base_ee, timings, prior=T)
             timings["optimisation"] = 1e3 * (time.perf_counter() - t0) - timings.get("refinement", 0.0)
-            seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
+            seen = self._segment_again(T_new, rgb, depth, K, found, timings)
             if colourless and self.colour.fg is not None:  # the first segmentation knew no colours: its outline
                 # was the prior's and the depth's; refined again on the colours learned from it, until the robot
                 # moves less than a pixel
                 for _ in range(COLOUR_ROUNDS):
                     T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
-                    seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
+                    seen = self._segment_again(T_new, rgb, depth, K, found, timings)
                     if self.parts.motion_px(placed(T, found.parts), placed(T_new, found.parts), K) < 1.0:
                         break
             accepted = self.T_cam_base is not None
@@ -413,14 +413,18 @@ class Estimator:
                 for _ in range(START_ROUNDS):
                     if verdict != FAILS:
                         break
-                    T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
-                    seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
+                    T_new = self._refined(T_new, T_base_ee, found, timings)
+                    seen = self._segment_again(T_new, rgb, depth, K, found, timings)
                     if self._explains(T_new, T_base_parts, rgb, depth, K, seen, has_depth) != FAILS:
                         verdict = PASSES if has_depth else SURE  # depth: judged at the segmentation it was just
                         # fitted to, so later frames confirm it (RGB only: the motion over the clip judged it)
                 accepted = self._accepts(verdict, T_start, T_new, found.parts, rgb, depth, K)
             if accepted and self.T_cam_base is None and self._waiting:
                 T_new, seen = self._settled(T_new, T_base_ee, rgb, depth, K, found, timings)
+        # the next frame's band: how far this frame's refinements moved the robot from the frame's start
+        self._band_px = float(np.clip(BAND_PER_PX * self.parts.motion_px(placed(T_start, T_base_parts),
+                                                                       placed(T_new, T_base_parts), K),
+                                      BAND_MIN_PX, BAND_START_PX))
         self.pool.consider(MemoryEntry(self.frame, T_base_ee, found), need_candidates=False)
         self.frame += 1
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
@@ -431,14 +435,10 @@ class Estimator:
         return FrameResult(T_new @ T_base_ee, T_new, score, len(found.candidates), n_keys, timings,
                            masks={"ee": seen.ee, "robot": seen.robot})
 
-    def _segment_again(self, T: np.ndarray, T_new: np.ndarray, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray,
+    def _segment_again(self, T_new: np.ndarray, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray,
                        found: FrameCandidates, timings: dict) -> Segmentation:
-        """The frame segmented again at the refined calibration T_new, the colours learned from it, and the
-        next frame's band set by how far the refinement moved the robot from T."""
+        """The frame segmented again at the refined calibration T_new, and the colours learned from it."""
         t0, before = time.perf_counter(), found.segmentation
-        self._band_px = float(np.clip(BAND_PER_PX * self.parts.motion_px(placed(T, found.parts),
-                                                                       placed(T_new, found.parts), K),
-                                      BAND_MIN_PX, BAND_START_PX))
         seen = segment(self.parts.coarse, T_new, found.parts, rgb, depth, K, self.colour, BAND_MIN_PX,
                        self._depth_sigma, robot_mask=before.robot_mask, ee_mask=before.ee_mask)
         self.colour.learn(rgb, seen)
@@ -494,7 +494,7 @@ class Estimator:
             self.T_cam_base, self._fitted = T_new, None  # refined over the key frames, not judged to stand
             self._refresh_key_frames(T_new)
             T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings)
-            seen = self._segment_again(T, T_new, rgb, depth, K, found, timings)
+            seen = self._segment_again(T_new, rgb, depth, K, found, timings)
             if self.parts.motion_px(placed(T, found.parts), placed(T_new, found.parts), K) < 1.0:
                 break
         return T_new, seen
