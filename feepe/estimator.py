@@ -343,8 +343,8 @@ class Estimator:
         arrive) or, with no depth, by its motion over the first frames (feepe/motion.py), each frame is
         segmented at the calibration so far, the template path crops the predicted end-effector until a
         calibration is accepted, and the robot's outline is fitted to the estimator's own segmentation (on the
-        first frame refined again once the colours are learned from the first fit). A frame before any hypothesis explains
-        its depth (or the motion and the frame's colours) well is a no-estimate."""
+        first frame refined again once the colours are learned from the first fit). A frame before any
+        hypothesis explains its depth (or the motion and the frame's colours) well is a no-estimate."""
         if self._robot_samples is None:
             raise UserError("with no mask the estimator finds the robot itself: reset(arm=[SilhouetteModel(...), ...]) "
                             "with the arm's link meshes, on an Estimator with silhouette='robot'")

@@ -419,3 +419,32 @@ def test_with_no_mask_the_first_estimate_is_refined_again_on_the_colours_learned
     r = est.step(f.rgb, f.depth, None, f.K, f.T_base_ee, _joint_states(robot, links, f))
     assert r.T_cam_base is not None
     assert knew_colours[0] is False and knew_colours[-1] is True
+
+
+
+
+def test_with_no_mask_the_next_frames_band_follows_the_whole_frames_motion(tiny_dataset, monkeypatch):
+    """A first frame is refined several times (its start, then again on its colours); the next frame's band is
+    set by how far all of them moved the robot from the frame's start, not by the last round alone (which,
+    converged on that frame, moves little while the calibration may still lie centimetres off)."""
+    from feepe.estimator import BAND_MIN_PX, BAND_PER_PX, BAND_START_PX, Estimator
+    from feepe.silhouette import placed
+    from kernel.bop import read_frame
+
+    scene = sorted((tiny_dataset / "test").iterdir())[0]
+    est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
+    starts = []
+    start = Estimator._start
+
+    def recording(self):
+        starts.append(start(self))
+        return starts[-1]
+
+    monkeypatch.setattr(Estimator, "_start", recording)
+    f = read_frame(scene, ids[0])
+    view = _joint_states(robot, links, f)
+    r = est.step(f.rgb, f.depth, None, f.K, f.T_base_ee, view)
+    assert r.T_cam_base is not None and len(starts) == 1
+    parts = np.concatenate([f.T_base_ee[None], view.T_base_links])
+    moved = est.parts.motion_px(placed(starts[0], parts), placed(r.T_cam_base, parts), f.K)
+    assert est._band_px == pytest.approx(np.clip(BAND_PER_PX * moved, BAND_MIN_PX, BAND_START_PX))
