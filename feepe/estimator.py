@@ -20,14 +20,15 @@ from feepe.backbones import get_backbone
 from feepe.candidates import FrameCandidates, SingleFrameOptions, frame_candidates
 from feepe.centres import CentreTrack, observed_centre
 from feepe.icp import (PlaneTerm, SurfaceModel, associate, depth_agreement, depth_distances, observed_cloud,
-                       robust_scale, sensor_plane_term)
+                       robust_scale, sensor_plane_term, without_window_bias)
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.motion import CLIP_FRAMES, MotionClip, MotionFit, motion_starts
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
 from feepe.registration import DepthFit, depth_fit, is_new, outline_contrast, register
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
-from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, segment
+from feepe.segmentation import (MIN_DEPTH_SIGMA_M, NOISY_PER_M, ColourModel, Segmentation, depth_noise, depth_sigma,
+                                segment)
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
                               mean_iou, placed, strided)
 from feepe.symmetry import consensus
@@ -132,6 +133,9 @@ class FeepeOptions:
     silhouette_refit_growth: float = 0.0  # new key frames refit once the memory grew by this fraction (0: each)
     depth_sigma_m: float = 0.002  # noise shape sigma_m + sigma_z2 * z^2 (m), scaled by the measured spread;
     depth_sigma_z2: float = 0.0036  # z^2 factor: Intel's D435 RMS model, subpixel 0.08 / (f 447 px x 0.05 m)
+    depth_window_px: float = 1.5  # no mask given: a stereo camera's matching window (a Gaussian's sigma, image
+    # px), whose bias over the robot's curved surfaces is taken off its depth (feepe.icp.window_bias; 0: not);
+    # fitted to our simulated D435's error against depth_gt at 320 x 240 (1.3-1.6 px), not to the results
     single: SingleFrameOptions = field(default_factory=SingleFrameOptions)
     optimize: OptimizeOptions = field(default_factory=OptimizeOptions)
 
@@ -143,6 +147,8 @@ class FeepeOptions:
                           ("silhouette_starts", 1), ("robot_start_frames", 0), ("silhouette_key_frames", 0)):
             if not getattr(self, name) >= low:
                 raise UserError(f"FeepeOptions.{name} = {getattr(self, name)} must be >= {low}")
+        if not self.depth_window_px >= 0:
+            raise UserError(f"FeepeOptions.depth_window_px = {self.depth_window_px} must be >= 0 (0: no window bias)")
         for name in ("icp_sigma_m", "silhouette_min_sigma_px", "depth_sigma_m", "silhouette_memory_m"):
             if not getattr(self, name) > 0:
                 raise UserError(f"FeepeOptions.{name} = {getattr(self, name)} must be > 0")
@@ -390,7 +396,7 @@ class Estimator:
         if self.opts.needs_surface:  # the depth of what the outline fits: the whole robot
             if surface is None:
                 surface = SurfaceModel(*self._robot_samples.placed(T_base_parts))
-            found.cloud, found.surface = _robot_cloud(depth, seen, K), surface
+            found.cloud, found.surface = _robot_cloud(depth, seen, K, self.opts.depth_window_px), surface
         if self.opts.silhouette_position_starts:
             self.centres.add(T_base_ee, observed_centre(depth, seen.ee, K))
         t0 = time.perf_counter()
@@ -445,7 +451,7 @@ class Estimator:
         self._depth_sigma = depth_sigma(seen)
         found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
         if found.surface is not None:
-            found.cloud = _robot_cloud(depth, seen, K)
+            found.cloud = _robot_cloud(depth, seen, K, self.opts.depth_window_px)
         timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
         return seen
 
@@ -559,7 +565,7 @@ class Estimator:
                                 BAND_MIN_PX, self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask)
                 entry.found.segmentation, entry.found.silhouette = again, mask_view(again.robot, K, seen.depth)
                 if entry.found.surface is not None:
-                    entry.found.cloud = _robot_cloud(seen.depth, again, K)
+                    entry.found.cloud = _robot_cloud(seen.depth, again, K, self.opts.depth_window_px)
 
     def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray, timings: dict,
                   prior: np.ndarray | None = None):
@@ -777,8 +783,12 @@ def _check_inputs(rgb, depth, mask, K, T_base_ee) -> None:
         raise UserError(f"T_base_ee must be 4x4, got {np.shape(T_base_ee)}")
 
 
-def _robot_cloud(depth: np.ndarray, seen: Segmentation, K: np.ndarray) -> np.ndarray:
-    """The depth points of the robot as the estimator segmented it, for the refinement with depth."""
+def _robot_cloud(depth: np.ndarray, seen: Segmentation, K: np.ndarray, window_px: float) -> np.ndarray:
+    """The depth points of the robot as the estimator segmented it, for the refinement with depth; a sensor's
+    depth (rough, unlike rendered exact depth) less its matching window's bias at the model's surface as the
+    segmentation placed it (the stereo camera's depth of the robot's rounded links reads farther)."""
+    if window_px > 0 and depth_noise(depth) > NOISY_PER_M:
+        depth = without_window_bias(depth, seen.view.depth, seen.view.inside > 0, window_px)
     return observed_cloud(depth, seen.robot, K, ROBOT_DEPTH_POINTS)
 
 

@@ -2,14 +2,15 @@
 symmetry."""
 
 import numpy as np
+import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
 from feepe.candidates import Candidate
 from feepe.crop import crop_around_mask
 from feepe.depth import normal_map
-from feepe.icp import (PlaneTerm, PlaneTerms, SurfaceModel, associate, depth_agreement, depth_distances,
-                       robust_scale)
+from feepe.icp import (WINDOW_BIAS_MAX_M, PlaneTerm, PlaneTerms, SurfaceModel, associate, depth_agreement,
+                       depth_distances, robust_scale, window_bias, without_window_bias)
 from feepe.matching import best_buddies
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.optimize import OptimizeOptions, _step, optimize, robust_sigma, stack
@@ -165,6 +166,50 @@ def test_depth_agreement_tells_the_right_calibration_from_a_turned_one():
     assert depth_agreement(off, 0.25) < depth_agreement(off, 1.0) < depth_agreement(off, 4.0)
     empty = depth_distances(T_cam_base, [(T_base_ee[0], np.zeros((0, 3)))], model, 0.002, 0.0036)
     assert len(empty) == 0 and np.isnan(depth_agreement(empty, 1.0)) and robust_scale(empty) == 1.0
+
+
+def _cylinder_depth(z_axis, radius, f=229.0, shape=(240, 320)):
+    """Depth (along the optical axis) of an upright cylinder whose axis crosses the optical axis at z_axis."""
+    u = np.arange(shape[1]) - (shape[1] - 1) / 2
+    x = np.tile(u / f, (shape[0], 1))
+    a = 1 + x ** 2
+    disc = z_axis ** 2 - a * (z_axis ** 2 - radius ** 2)
+    return np.where(disc > 0, (z_axis - np.sqrt(np.maximum(disc, 0))) / a, 0.0)
+
+
+def test_a_window_matcher_reads_a_rounded_surface_farther_and_a_plane_where_it_lies():
+    """The window bias at a cylinder's front is the closed form z^2 s^2 / (2 r f^2) (a 4 cm link at 1 m:
+    about half a millimetre at s = 1.5 px), grows with the window's area, and is nil on a slanted plane, whose
+    inverse depth is linear in the image."""
+    f = 229.0
+    for z_axis, r in ((1.04, 0.04), (0.62, 0.02)):
+        z = _cylinder_depth(z_axis, r, f)
+        centre = window_bias(z, z > 0, 1.5)[120, 159:161].mean()
+        assert centre == pytest.approx((z_axis - r) ** 2 * 1.5 ** 2 / (2 * r * f ** 2), rel=0.05)
+        wide, narrow = (window_bias(z, z > 0, s)[120, 159:161].mean() for s in (2.0, 1.0))
+        assert wide / narrow == pytest.approx(4.0, rel=0.1)
+    v, u = np.mgrid[0:240, 0:320]
+    plane = 1.0 / (0.8 + 0.0015 * (u - 160) - 0.0008 * (v - 120))  # 1/z linear: a plane seen in perspective
+    inner = (slice(10, -10), slice(10, -10))
+    assert np.abs(window_bias(plane, plane > 0, 1.5)[inner]).max() < 2e-6  # float32 sums
+
+
+def test_depth_less_its_window_bias_is_the_surface_and_a_straddling_window_says_nothing():
+    """A matcher simulated as the window's mean inverse depth over a cylinder: less the bias, the surface it
+    reads; where the drawn model holds a bar before a wall, the windows across the step have no depth left."""
+    z = _cylinder_depth(1.04, 0.04)
+    drawn = z > 0
+    sensed = z + window_bias(z, drawn, 1.5)
+    read = without_window_bias(sensed, z, drawn, 1.5)
+    kept = read > 0  # all but the rim, where the window reaches past the outline
+    assert kept.sum() > 0.8 * drawn.sum() and np.abs(read - z)[kept].max() < 1e-9
+    wall = np.full((240, 320), 1.5)
+    bar = np.where(np.abs(np.arange(320) - 160) < 12, 0.8, 0.0)[None].repeat(240, 0)
+    scene = np.where(bar > 0, bar, wall)
+    read = without_window_bias(scene, scene, scene > 0, 1.5)
+    assert np.all(read[:, 100] == 1.5) and np.all(read[:, 160] == pytest.approx(0.8))
+    step = np.abs(window_bias(scene, scene > 0, 1.5)) > WINDOW_BIAS_MAX_M
+    assert step[:, 147:149].all() and np.all(read[step] == 0)
 
 
 def test_each_frame_may_bring_its_own_model_placed_in_the_base_frame():
