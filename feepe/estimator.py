@@ -27,8 +27,7 @@ from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
 from feepe.registration import DepthFit, depth_fit, is_new, outline_contrast, register
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
-from feepe.segmentation import (MIN_DEPTH_SIGMA_M, NOISY_PER_M, ColourModel, Segmentation, depth_noise, depth_sigma,
-                                segment)
+from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, is_sensor_depth, segment
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
                               mean_iou, placed, strided)
 from feepe.symmetry import consensus
@@ -787,7 +786,7 @@ def _robot_cloud(depth: np.ndarray, seen: Segmentation, K: np.ndarray, window_px
     """The depth points of the robot as the estimator segmented it, for the refinement with depth; a sensor's
     depth (rough, unlike rendered exact depth) less its matching window's bias at the model's surface as the
     segmentation placed it (the stereo camera's depth of the robot's rounded links reads farther)."""
-    if window_px > 0 and depth_noise(depth) > NOISY_PER_M:
+    if window_px > 0 and is_sensor_depth(depth):
         depth = without_window_bias(depth, seen.view.depth, seen.view.inside > 0, window_px)
     return observed_cloud(depth, seen.robot, K, ROBOT_DEPTH_POINTS)
 

@@ -64,9 +64,8 @@ def window_bias(z_model: np.ndarray, drawn: np.ndarray, sigma_px: float) -> np.n
     window is a Gaussian of `sigma_px` (s) over the drawn pixels, the model's depth `z_model` rendered there."""
     on = (drawn & (z_model > 0)).astype(np.float32)
     inv = np.where(on > 0, 1.0 / np.maximum(z_model, 1e-6), 0.0).astype(np.float32)
-    size = int(np.ceil(3 * sigma_px)) * 2 + 1
-    mean_inv = cv2.GaussianBlur(inv, (size, size), sigma_px) / np.maximum(cv2.GaussianBlur(on, (size, size), sigma_px),
-                                                                           1e-12)
+    size = (int(np.ceil(3 * sigma_px)) * 2 + 1,) * 2
+    mean_inv = cv2.GaussianBlur(inv, size, sigma_px) / np.maximum(cv2.GaussianBlur(on, size, sigma_px), 1e-12)
     with np.errstate(divide="ignore"):
         return np.where(on > 0, 1.0 / mean_inv - z_model, 0.0)
 

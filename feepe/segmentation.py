@@ -134,15 +134,21 @@ def depth_noise(depth: np.ndarray) -> float:
     return robust_sigma((z[valid] - median[valid]) / z[valid] ** 2)
 
 
+def is_sensor_depth(depth: np.ndarray) -> bool:
+    """A sensor's depth (rougher than NOISY_PER_M), not rendered exact depth: its edges spread and its
+    surfaces carry the matcher's bias, which the estimator allows for."""
+    return depth_noise(depth) > NOISY_PER_M
+
+
 def depth_logodds(depth: np.ndarray, view: ModelView, sigma_m: float) -> np.ndarray:
     """Per pixel: the observed depth against the model's next to it, robot (Gaussian of the difference)
     against background (uniform over DEPTH_RANGE_M); 0 where the sensor has no depth or no model is near, and
-    near depth edges for a sensor's rough depth (`depth_noise` above NOISY_PER_M)."""
+    near depth edges for a sensor's rough depth (`is_sensor_depth`)."""
     d = np.asarray(depth, float) - view.depth
     out = np.log(DEPTH_RANGE_M / (sigma_m * np.sqrt(2 * np.pi))) - 0.5 * (d / sigma_m) ** 2
     out = np.clip(out, *DEPTH_CLIP)
     said = (depth > 0) & (view.depth > 0)
-    if depth_noise(depth) > NOISY_PER_M:
+    if is_sensor_depth(depth):
         said &= ~depth_edges(depth)
     return np.where(said, out, 0.0).astype(np.float32)
 

@@ -421,8 +421,6 @@ def test_with_no_mask_the_first_estimate_is_refined_again_on_the_colours_learned
     assert knew_colours[0] is False and knew_colours[-1] is True
 
 
-
-
 def test_with_no_mask_the_next_frames_band_follows_the_whole_frames_motion(tiny_dataset, monkeypatch):
     """A first frame is refined several times (its start, then again on its colours); the next frame's band is
     set by how far all of them moved the robot from the frame's start, not by the last round alone (which,
