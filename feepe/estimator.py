@@ -68,6 +68,12 @@ SURE, PASSES, FAILS = "sure", "passes", "fails"  # a first calibration's verdict
 MOTION_MIN_FRAMES = 8  # RGB only, no mask: the robot is first searched for by its motion once this many frames are
 # seen (feepe/motion.py; frames 0 and 1 of a mini segment differ on 2 % of the pixels, frames 0 and 7 on a quarter)
 MOTION_EVERY = 4  # and again every this many frames until a calibration is accepted
+RGB_CONTRAST = SURE_CONTRAST  # RGB only: the colour must change across this share of a first calibration's
+# outline, and across ACCEPT_CONTRAST's on every later frame, or the calibration is dropped. Without depth the
+# colour is the one check on the pose beside the motion, and the motion alone can prefer a robot placed decimetres
+# off along the camera's ray: `data/mini` scene 10 (UR5e + Robotiq-3F) was accepted 30 cm off at 0.84, then read
+# 0.70-0.83 on each later frame; the RGB-only estimates of 11 other segments (`data/mini`, seed 19) read 0.95-1.00
+# on every frame, and one 12-13 mm off (seed 19's UR10e + Robotiq-3F) 0.88-0.90
 MOTION_KEPT = 0.95  # RGB only: a first calibration, refined, must keep this share of the best motion score the
 # search found on the frames so far (motion.py): the outline refinement must not have taken it elsewhere. The
 # scores themselves tell little alone: shadows cost the true calibration of mini scene 4 half of its score
@@ -413,7 +419,10 @@ class Estimator:
                     if self.parts.motion_px(placed(T, found.parts), placed(T_new, found.parts), K) < 1.0:
                         break
             accepted = self.T_cam_base is not None
-            if not accepted:
+            if accepted and not has_depth and outline_contrast(seen.view.inside > 0, rgb) < ACCEPT_CONTRAST:
+                self._drop()
+                accepted = False
+            elif not accepted:
                 verdict = self._explains(T_new, T_base_parts, rgb, depth, K, seen, has_depth)
                 for _ in range(START_ROUNDS):
                     if verdict != FAILS:
@@ -522,9 +531,18 @@ class Estimator:
         the motion so far and the frame's colours across its outline (SURE or FAILS)."""
         if has_depth:
             return _explains_frame(self.parts, T_cam_base, T_base_parts, rgb, depth, K, seen.view.inside > 0)
-        explains = (bool(self._hypotheses) and outline_contrast(seen.view.inside > 0, rgb) >= ACCEPT_CONTRAST
+        explains = (bool(self._hypotheses) and outline_contrast(seen.view.inside > 0, rgb) >= RGB_CONTRAST
                     and MotionFit(self._clip).score(T_cam_base) >= MOTION_KEPT * self._hypotheses[0][1])
         return SURE if explains else FAILS
+
+    def _drop(self) -> None:
+        """RGB only: an accepted calibration under which the colour no longer changes across ACCEPT_CONTRAST of the
+        robot's outline is dropped, with what was learned from it (the colours, the last fit)
+        and the motion search's hypotheses; the search runs again every MOTION_EVERY frames, and the frames until
+        another calibration is accepted are no-estimates."""
+        self.T_cam_base, self._fitted, self._passing = None, None, None
+        self.colour = ColourModel()
+        self._hypotheses = []
 
     def _start(self) -> np.ndarray | None:
         """What this frame refines: the calibration accepted, else the start kept from the last frame (it goes on

@@ -422,6 +422,26 @@ def test_rgb_only_the_robot_is_found_by_its_motion_and_never_wildly(tiny_dataset
             assert np.linalg.norm((inv_T(meta.T_cam_base) @ r.T_cam_base)[:3, 3]) < 0.05, i
 
 
+def test_rgb_only_a_calibration_the_colours_stop_bearing_out_is_dropped(tiny_dataset):
+    """RGB only: an accepted calibration is kept while the colour changes across the robot's outline, and dropped
+    (with the motion search's hypotheses) on a frame where it no longer does: that frame and the next are
+    no-estimates, not a calibration the image contradicts (`data/mini` scene 10 was kept 30 cm off)."""
+    from kernel.bop import read_frame
+
+    scene = sorted((tiny_dataset / "test").iterdir())[0]
+    est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
+    est.T_cam_base, est._hypotheses = meta.T_cam_base.copy(), [[meta.T_cam_base.copy(), 1.0]]
+    f = read_frame(scene, ids[0])
+    kept = est.step(f.rgb, None, None, f.K, f.T_base_ee, _joint_states(robot, links, f))
+    assert kept.T_cam_base is not None and np.linalg.norm(kept.T_cam_base[:3, 3] - meta.T_cam_base[:3, 3]) < 0.02
+    grey = np.full_like(f.rgb, 128)
+    for i in ids[1:3]:
+        g = read_frame(scene, i)
+        r = est.step(grey, None, None, g.K, g.T_base_ee, _joint_states(robot, links, g))
+        assert r.T_cam_base is None and r.masks is None and est.T_cam_base is None, i
+    assert not est._hypotheses
+
+
 def test_with_no_mask_the_first_estimate_is_refined_again_on_the_colours_learned_from_it(tiny_dataset, monkeypatch):
     """The first frame's segmentation knows no colours (none are learned yet), so its outline is the prior's
     and the depth's; the calibration returned for it was last refined on a segmentation that reads them."""
