@@ -537,9 +537,9 @@ class Estimator:
 
     def _drop(self) -> None:
         """RGB only: an accepted calibration under which the colour no longer changes across ACCEPT_CONTRAST of the
-        robot's outline is dropped, with what was learned from it (the colours, the last fit)
-        and the motion search's hypotheses; the search runs again every MOTION_EVERY frames, and the frames until
-        another calibration is accepted are no-estimates."""
+        robot's outline is dropped, with what was learned from it (the colours, the last fit) and the motion
+        search's hypotheses; the search runs again every MOTION_EVERY frames, and the frames until another
+        calibration is accepted are no-estimates."""
         self.T_cam_base, self._fitted, self._passing = None, None, None
         self.colour = ColourModel()
         self._hypotheses = []
