@@ -27,7 +27,7 @@ from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
 from feepe.registration import DepthFit, depth_fit, is_new, outline_contrast, register
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
-from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, is_sensor_depth, segment
+from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, segment
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
                               mean_iou, placed, strided)
 from feepe.symmetry import consensus
@@ -401,7 +401,7 @@ class Estimator:
         if self.opts.needs_surface:  # the depth of what the outline fits: the whole robot
             if surface is None:
                 surface = SurfaceModel(*self._robot_samples.placed(T_base_parts))
-            found.cloud, found.surface = _robot_cloud(depth, seen, K, self.opts.depth_window_px), surface
+            found.cloud, found.surface = _robot_cloud(seen, K, self.opts.depth_window_px), surface
         if self.opts.silhouette_position_starts:
             self.centres.add(T_base_ee, observed_centre(depth, seen.ee, K))
         t0 = time.perf_counter()
@@ -459,7 +459,7 @@ class Estimator:
         self._depth_sigma = depth_sigma(seen)
         found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
         if found.surface is not None:
-            found.cloud = _robot_cloud(depth, seen, K, self.opts.depth_window_px)
+            found.cloud = _robot_cloud(seen, K, self.opts.depth_window_px)
         timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
         return seen
 
@@ -582,7 +582,7 @@ class Estimator:
                                 BAND_MIN_PX, self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask)
                 entry.found.segmentation, entry.found.silhouette = again, mask_view(again.robot, K, seen.depth)
                 if entry.found.surface is not None:
-                    entry.found.cloud = _robot_cloud(seen.depth, again, K, self.opts.depth_window_px)
+                    entry.found.cloud = _robot_cloud(again, K, self.opts.depth_window_px)
 
     def _estimate(self, found: FrameCandidates, T_base_ee: np.ndarray, timings: dict,
                   prior: np.ndarray | None = None):
@@ -800,11 +800,12 @@ def _check_inputs(rgb, depth, mask, K, T_base_ee) -> None:
         raise UserError(f"T_base_ee must be 4x4, got {np.shape(T_base_ee)}")
 
 
-def _robot_cloud(depth: np.ndarray, seen: Segmentation, K: np.ndarray, window_px: float) -> np.ndarray:
+def _robot_cloud(seen: Segmentation, K: np.ndarray, window_px: float) -> np.ndarray:
     """The depth points of the robot as the estimator segmented it, for the refinement with depth; a sensor's
     depth (rough, unlike rendered exact depth) less its matching window's bias at the model's surface as the
     segmentation placed it (the stereo camera's depth of the robot's rounded links reads farther)."""
-    if window_px > 0 and is_sensor_depth(depth):
+    depth = seen.depth
+    if window_px > 0 and seen.sensor_depth:
         depth = without_window_bias(depth, seen.view.depth, seen.view.inside > 0, window_px)
     return observed_cloud(depth, seen.robot, K, ROBOT_DEPTH_POINTS)
 

@@ -140,15 +140,15 @@ def is_sensor_depth(depth: np.ndarray) -> bool:
     return depth_noise(depth) > NOISY_PER_M
 
 
-def depth_logodds(depth: np.ndarray, view: ModelView, sigma_m: float) -> np.ndarray:
+def depth_logodds(depth: np.ndarray, view: ModelView, sigma_m: float, sensor: bool) -> np.ndarray:
     """Per pixel: the observed depth against the model's next to it, robot (Gaussian of the difference)
     against background (uniform over DEPTH_RANGE_M); 0 where the sensor has no depth or no model is near, and
-    near depth edges for a sensor's rough depth (`is_sensor_depth`)."""
+    near depth edges for a sensor's rough depth (`sensor`: `is_sensor_depth`)."""
     d = np.asarray(depth, float) - view.depth
     out = np.log(DEPTH_RANGE_M / (sigma_m * np.sqrt(2 * np.pi))) - 0.5 * (d / sigma_m) ** 2
     out = np.clip(out, *DEPTH_CLIP)
     said = (depth > 0) & (view.depth > 0)
-    if is_sensor_depth(depth):
+    if sensor:
         said &= ~depth_edges(depth)
     return np.where(said, out, 0.0).astype(np.float32)
 
@@ -166,12 +166,12 @@ def depth_edges(depth: np.ndarray) -> np.ndarray:
 
 
 def robot_logodds(rgb: np.ndarray, depth: np.ndarray | None, view: ModelView, colour: ColourModel,
-                  band_px: float, sigma_m: float) -> np.ndarray:
-    """log-odds of robot per pixel: the outline prior, the colours and the depth, summed."""
+                  band_px: float, sigma_m: float, sensor: bool) -> np.ndarray:
+    """log-odds of robot per pixel: the outline prior, the colours and the depth (`sensor`: a sensor's), summed."""
     prior = np.clip(view.inside / max(band_px, 0.5) * PRIOR_LOGODDS, PRIOR_FLOOR, PRIOR_LOGODDS)
     logodds = prior + colour.logodds(rgb)
     if depth is not None:
-        logodds += depth_logodds(depth, view, sigma_m)
+        logodds += depth_logodds(depth, view, sigma_m, sensor)
     return logodds.astype(np.float32)
 
 
@@ -223,6 +223,7 @@ class Segmentation:
     ee: np.ndarray  # (H, W) bool: those of its pixels whose nearest model part is the end-effector
     robot_mask: np.ndarray | None = None  # the masks handed in, if any: segmenting again weighs them again
     ee_mask: np.ndarray | None = None
+    sensor_depth: bool = False  # `depth` is a sensor's (`is_sensor_depth`), judged once per segmentation
 
 
 def segment(parts, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
@@ -233,10 +234,12 @@ def segment(parts, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.nda
     `robot_mask` / `ee_mask`: masks handed in (a segmenter's), a prior weighed by their agreement."""
     T_cam_parts = np.einsum("ij,njk->nik", T_cam_base, T_base_parts)
     view = model_view(parts.part_depths(T_cam_parts, K, depth.shape))
-    logodds = robot_logodds(rgb, depth if (depth > 0).any() else None, view, colour, band_px, sigma_m)
+    has_depth = bool((depth > 0).any())
+    sensor = has_depth and is_sensor_depth(depth)
+    logodds = robot_logodds(rgb, depth if has_depth else None, view, colour, band_px, sigma_m, sensor)
     if robot_mask is not None or ee_mask is not None:
         logodds = logodds + given_logodds(logodds > 0, view, robot_mask, ee_mask)
     probability = _probability(logodds)
     robot = probability > 0.5
     return Segmentation(rgb, depth, np.asarray(T_cam_base, float), view, probability, robot,
-                        robot & (view.part == 0), robot_mask, ee_mask)
+                        robot & (view.part == 0), robot_mask, ee_mask, sensor)

@@ -253,7 +253,7 @@ def test_a_stereo_cameras_depth_is_not_read_at_its_edges_nor_at_a_fixed_scale():
     above NOISY_PER_M) is silenced there, exact depth is not, whatever the depth term's scale; that scale is
     measured on the robot's confident pixels."""
     from feepe.segmentation import (DEPTH_EDGE_PX, NOISY_PER_M, ModelView, Segmentation, depth_edges,
-                                    depth_logodds, depth_noise, depth_sigma)
+                                    depth_logodds, depth_noise, depth_sigma, is_sensor_depth)
 
     depth = np.full((40, 60), 2.0)
     depth[:, 30:] = 1.0  # a step at column 30
@@ -267,7 +267,8 @@ def test_a_stereo_cameras_depth_is_not_read_at_its_edges_nor_at_a_fixed_scale():
     rough = depth + rng.normal(0, 0.002, depth.shape) * depth**2
     assert depth_noise(depth) == 0.0 and depth_noise(rough) > NOISY_PER_M
     for sigma in (0.01, 0.03):
-        sharp, spread = depth_logodds(depth, view, sigma), depth_logodds(rough, view, sigma)
+        sharp = depth_logodds(depth, view, sigma, is_sensor_depth(depth))
+        spread = depth_logodds(rough, view, sigma, is_sensor_depth(rough))
         assert (sharp[:, 30] > 0).all() and (spread[:, 30] == 0).all() and (spread[:, 50] > 0).all()
 
     noisy = 1.0 + rng.normal(0, 0.02, depth.shape)
