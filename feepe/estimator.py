@@ -375,7 +375,7 @@ class Estimator:
                 else:
                     self._judge_motion(rgb, K, T_base_parts)
                 timings["registration"] = 1e3 * (time.perf_counter() - t0)
-            T = T_start = self._start()
+            T = T_start = self._start(T_base_parts, rgb, depth, K)
             if T is None:
                 if not has_depth:
                     self._waiting.append((self.frame, rgb, K, T_base_ee, T_base_parts))
@@ -468,11 +468,16 @@ class Estimator:
         """The robot found again in this frame's depth (feepe/registration.py); every hypothesis so far and
         the new ones scored by their depth agreement on this frame, borne out by the colour across their outline
         (on the coarse grid: the hypotheses are a centimetre or so off before any refinement, and an offset
-        of three coarse pixels spans that), summed over the frames seen; from the second frame on, the nearest
-        parts of the scene are searched too (the whole scene failed the first). `model`: the robot's surface
-        samples placed by this frame's joint states (base frame)."""
+        of three coarse pixels spans that), summed over the frames seen. Once the whole scene has failed, its
+        nearest parts are searched too (registration.near_hypotheses): on the first frame when none of the whole
+        scene's hypotheses explains it as it stands (`_explains_frame` on the coarse grid), on every later one
+        (no calibration was accepted). `model`: the robot's surface samples placed by this frame's joint states
+        (base frame)."""
         known = [h[0] for h in self._hypotheses]
-        for T in register(model, depth, K, seed=self.frame, near=self.frame > 0):
+        found = register(model, depth, K, seed=self.frame, near=self.frame > 0)
+        if self.frame == 0 and all(_explains_frame(self.parts, T, T_base_parts, rgb, depth, K) == FAILS for T in found):
+            found += register(model, depth, K, seed=self.frame, near=True, whole=False)
+        for T in found:
             if is_new(T, known):
                 self._hypotheses.append([T, 0.0])
                 known.append(T)
@@ -544,21 +549,28 @@ class Estimator:
         self.colour = ColourModel()
         self._hypotheses = []
 
-    def _start(self) -> np.ndarray | None:
+    def _start(self, T_base_parts: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
+               K: np.ndarray) -> np.ndarray | None:
         """What this frame refines: the calibration accepted, else the start kept from the last frame (it goes on
-        being refined as frames arrive), else the best hypothesis."""
+        being refined as frames arrive) unless the best hypothesis scores higher on this frame
+        (`_depth_score`), else the best hypothesis. Seed 103 scene 7's near pass at frame 0 kept a UR5e 68 cm off
+        on a sliver of the image (4.3 %, agreement 0.99, contrast 0.84), which failed at frame 1 while a hypothesis
+        0.8 cm off, covering 13 %, ranked first; the hypothesis it came from is no guide (seed 59 scene 8: a start
+        kept from one 27 cm off was refined to 0.7 cm over four frames as that one dropped out of the ranking)."""
         if self.T_cam_base is not None:
             return self.T_cam_base
-        if self._passing is not None:
-            return self._passing
-        return self._hypotheses[0][0] if self._hypotheses else None
+        best = self._hypotheses[0][0] if self._hypotheses else None
+        if self._passing is None or best is None:
+            return best if self._passing is None else self._passing
+        kept, other = (_depth_score(self.parts, T, T_base_parts, rgb, depth, K) for T in (self._passing, best))
+        return self._passing if kept >= other else best
 
     def _accepts(self, verdict: str, T_start: np.ndarray, T_new: np.ndarray, T_base_parts: np.ndarray,
                  rgb: np.ndarray, depth: np.ndarray, K: np.ndarray) -> bool:
         """Whether the first calibration T_new, refined from T_start on this frame, is taken: SURE from a
         hypothesis, or passing from the start kept from the last frame, which this frame bears out. A start that
         passes and is not taken is kept for the next frame."""
-        kept, self._passing = self._passing, None
+        kept, self._passing = (self._passing if T_start is self._passing else None), None
         if verdict == FAILS:
             return False
         if verdict == SURE and kept is None:
@@ -828,15 +840,21 @@ def _depth_score(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: n
 
 
 def _explains_frame(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray,
-                    depth: np.ndarray, K: np.ndarray, drawn: np.ndarray) -> str:
-    """Whether the robot placed at the calibration (`drawn`: its pixels) explains the frame well enough to be
-    a first estimate (no mask given): enough of it in view, nothing nearer hides most of its pixels with
-    depth, most of those agree, few are seen through, and the image's colour changes across most of its
-    outline (PASSES); SURE when the agreement, the seen-through share and the contrast clear the higher bars."""
+                    depth: np.ndarray, K: np.ndarray, drawn: np.ndarray | None = None) -> str:
+    """Whether the robot placed at the calibration (`drawn`: its pixels; None: the coarse meshes' on the coarse
+    grid, for a hypothesis not yet refined) explains the frame well enough to be a first estimate (no mask
+    given): enough of it in view, nothing nearer hides most of its pixels with depth, most of those agree, few
+    are seen through, and the image's colour changes across most of its outline (PASSES); SURE when the
+    agreement, the seen-through share and the contrast clear the higher bars."""
     found, rendered = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
     unhidden = found.drawn - found.in_front
     in_view = found.drawn >= ACCEPT_MIN_SHARE * rendered.size and unhidden >= ACCEPT_UNHIDDEN * found.drawn
-    contrast = outline_contrast(drawn, rgb) if in_view else 0.0
+    if not in_view:
+        contrast = 0.0
+    elif drawn is None:
+        contrast = outline_contrast(rendered > 0, strided(rgb, K, IOU_STRIDE)[0])
+    else:
+        contrast = outline_contrast(drawn, rgb)
     if not (in_view and found.agree >= ACCEPT_AGREE * unhidden
             and found.seen_through <= ACCEPT_SEEN_THROUGH * found.drawn and contrast >= ACCEPT_CONTRAST):
         return FAILS

@@ -147,16 +147,16 @@ def near_hypotheses(model: SurfaceModel, cloud: tuple[np.ndarray, np.ndarray], p
 
 
 def register(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 0,
-             near: bool = False) -> list[np.ndarray]:
+             near: bool = False, whole: bool = True) -> list[np.ndarray]:
     """T_cam_base hypotheses for the robot whose base-frame surface samples are `model`, strongest vote first
-    (then, with `near`, those of the nearest parts), each refined by ICP on the scene's points; [] when the
-    depth holds too little."""
+    (`whole`: the whole scene's; then, with `near`, those of its nearest parts), each refined by ICP on the
+    scene's points; [] when the depth holds too little."""
     detector = PpfDetector(model, PPF)
     cloud = depth_cloud(depth, K)
     points, normals = scene_points(cloud, detector.step, np.random.default_rng(seed))
     if len(points) < 10:
         return []
-    starts = detector.hypotheses(points, normals)
+    starts = detector.hypotheses(points, normals) if whole else []
     if near:
         starts += near_hypotheses(model, cloud, points, detector.step)
     no_matches = stack([])

@@ -124,6 +124,20 @@ def test_an_arm_seen_close_before_a_far_straying_background_is_found_in_the_near
                for U in found)
 
 
+def test_the_nearest_parts_are_searched_alone_once_the_whole_scene_has_failed():
+    """register(whole=False): the nearest parts' hypotheses only, refined as the whole scene's are (the
+    estimator's near pass on a first frame whose whole-scene hypotheses all fail); nothing searched, nothing
+    found."""
+    parts, _, depth, _, _, _ = _scene()
+    depth = np.where(depth > 0, depth + np.random.default_rng(1).normal(0, 0.002, depth.shape), 0.0)
+    model = SurfaceModel(*RobotSamples.of([p.mesh for p in parts.parts]).placed(np.repeat(np.eye(4)[None], 4, 0)))
+    near = register(model, depth, K, near=True, whole=False)
+    assert any(np.linalg.norm(T[:3, 3] - T_CAM_BASE[:3, 3]) < 0.01
+               and np.degrees(rotation_angle(T[:3, :3], T_CAM_BASE[:3, :3])) < 1 for T in near)
+    assert len(near) < len(register(model, depth, K, near=True))
+    assert register(model, depth, K, near=False, whole=False) == []
+
+
 def test_hypotheses_at_one_place_turned_apart_are_two_and_near_equal_ones_one():
     """Two calibrations are one hypothesis only when they are within 2 deg and 2 cm: one turned by 10 deg (or
     by a half turn, the robot seen from behind) at the same place is another."""
@@ -400,6 +414,52 @@ def test_a_first_calibration_short_of_the_sure_bars_waits_for_a_frame_that_bears
         assert not any(taken) and est._passing is not None
 
 
+@pytest.mark.parametrize("grey", [False, True])
+def test_a_first_frame_whose_whole_scene_hypotheses_all_fail_searches_the_nearest_parts(tiny_dataset, monkeypatch,
+                                                                                        grey):
+    """On the first frame the nearest parts are searched only when no whole-scene hypothesis explains the frame
+    (here: a grey image, whose colour bears no outline out); from the second frame on, while none is accepted,
+    always beside the whole scene."""
+    import feepe.estimator as estimator
+    from kernel.bop import read_frame
+
+    calls = []
+    register = estimator.register
+    monkeypatch.setattr(estimator, "register", lambda *a, **k: calls.append((k["near"], k.get("whole", True)))
+                        or register(*a, **k))
+    scene = sorted((tiny_dataset / "test").iterdir())[0]
+    est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
+    f = read_frame(scene, ids[0])
+    r = est.step(np.full_like(f.rgb, 128) if grey else f.rgb, f.depth, None, f.K, f.T_base_ee,
+                 _joint_states(robot, links, f))
+    assert calls == ([(False, True), (True, False)] if grey else [(False, True)])
+    assert (r.T_cam_base is None) == grey
+    if grey:
+        f = read_frame(scene, ids[1])
+        est.step(np.full_like(f.rgb, 128), f.depth, None, f.K, f.T_base_ee, _joint_states(robot, links, f))
+        assert calls[2:] == [(True, True)]
+
+
+def test_a_kept_start_gives_way_to_a_hypothesis_that_scores_higher_on_the_frame(tiny_dataset):
+    """The start kept from the last frame is refined on unless the best hypothesis explains the new frame's depth
+    better (a rendered frame): a calibration 30 cm off gives way to the true one, and is kept before one 30 cm
+    off."""
+    from kernel.bop import read_frame
+
+    scene = sorted((tiny_dataset / "test").iterdir())[0]
+    est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
+    f = read_frame(scene, ids[0])
+    T_base_parts = np.concatenate([f.T_base_ee[None], _joint_states(robot, links, f).T_base_links])
+    true, off = meta.T_cam_base, meta.T_cam_base @ make_T(t=[0.3, 0.0, 0.0])
+    frame = (T_base_parts, f.rgb, f.depth, f.K)
+    est._passing, est._hypotheses = off, [[true, 1.0]]
+    assert est._start(*frame) is true
+    est._passing, est._hypotheses = true, [[off, 5.0]]
+    assert est._start(*frame) is true
+    est._passing = None
+    assert est._start(*frame) is off
+
+
 def test_rgb_only_the_robot_is_found_by_its_motion_and_never_wildly(tiny_dataset, monkeypatch):
     """RGB only, no mask (a rendered segment, 160x120): frames before the motion search are no-estimates; the
     search runs once 4 frames are seen (not 8: the segment has 6) and leaves hypotheses; an estimate, when there
@@ -478,8 +538,8 @@ def test_with_no_mask_the_next_frames_band_follows_the_whole_frames_motion(tiny_
     starts = []
     start = Estimator._start
 
-    def recording(self):
-        starts.append(start(self))
+    def recording(self, *frame):
+        starts.append(start(self, *frame))
         return starts[-1]
 
     monkeypatch.setattr(Estimator, "_start", recording)
