@@ -25,7 +25,7 @@ from feepe.memory import MemoryEntry, MemoryPool
 from feepe.motion import CLIP_FRAMES, MotionClip, MotionFit, motion_starts
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
-from feepe.registration import DepthFit, depth_fit, is_new, outline_contrast, register
+from feepe.registration import DepthFit, SceneSearch, depth_fit, is_new, outline_contrast
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
 from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, segment
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
@@ -470,21 +470,27 @@ class Estimator:
         (on the coarse grid: the hypotheses are a centimetre or so off before any refinement, and an offset
         of three coarse pixels spans that), summed over the frames seen. Once the whole scene has failed, its
         nearest parts are searched too (registration.near_hypotheses): on the first frame when none of the whole
-        scene's hypotheses explains it as it stands (`_explains_frame` on the coarse grid), on every later one
-        (no calibration was accepted). `model`: the robot's surface samples placed by this frame's joint states
-        (base frame)."""
+        scene's hypotheses explains it as it stands (`_coarse_judgement`), on every later one (no calibration was
+        accepted). `model`: the robot's surface samples placed by this frame's joint states (base frame)."""
+        search = SceneSearch(model, depth, K, seed=self.frame)
+        self._add_hypotheses(search.hypotheses(near=self.frame > 0))
+        judged = [_coarse_judgement(self.parts, h[0], T_base_parts, rgb, depth, K) for h in self._hypotheses]
+        if self.frame == 0 and all(verdict == FAILS for _, verdict in judged):
+            self._add_hypotheses(search.hypotheses(near=True, whole=False))
+            judged += [_coarse_judgement(self.parts, h[0], T_base_parts, rgb, depth, K)
+                       for h in self._hypotheses[len(judged):]]
+        for h, (score, _) in zip(self._hypotheses, judged):
+            h[1] += score
+        self._hypotheses.sort(key=lambda h: -h[1])
+        del self._hypotheses[MAX_HYPOTHESES:]
+
+    def _add_hypotheses(self, found: list[np.ndarray]) -> None:
+        """New hypotheses join those so far, unscored; one near-equal to a known one does not (is_new)."""
         known = [h[0] for h in self._hypotheses]
-        found = register(model, depth, K, seed=self.frame, near=self.frame > 0)
-        if self.frame == 0 and all(_explains_frame(self.parts, T, T_base_parts, rgb, depth, K) == FAILS for T in found):
-            found += register(model, depth, K, seed=self.frame, near=True, whole=False)
         for T in found:
             if is_new(T, known):
                 self._hypotheses.append([T, 0.0])
                 known.append(T)
-        for h in self._hypotheses:
-            h[1] += _depth_score(self.parts, h[0], T_base_parts, rgb, depth, K)
-        self._hypotheses.sort(key=lambda h: -h[1])
-        del self._hypotheses[MAX_HYPOTHESES:]
 
     def _judge_motion(self, rgb: np.ndarray, K: np.ndarray, T_base_parts: np.ndarray) -> None:
         """RGB only: the frame joins the clip; from MOTION_MIN_FRAMES on, every MOTION_EVERY frames, the robot is
@@ -831,30 +837,37 @@ def _coarse_depth_fit(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_par
     return depth_fit(rendered, coarse), rendered
 
 
+def _coarse_judgement(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray,
+                      depth: np.ndarray, K: np.ndarray) -> tuple[float, str]:
+    """A hypothesis judged on the coarse grid, as it stands: its depth score (`_depth_score`) and its verdict
+    (`_explains_frame`), from one render and one contrast on the coarse meshes' outline."""
+    fit, rendered = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
+    contrast = outline_contrast(rendered > 0, strided(rgb, K, IOU_STRIDE)[0])
+    return fit.score(contrast), _verdict(fit, rendered.size, contrast)
+
+
 def _depth_score(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray,
                  depth: np.ndarray, K: np.ndarray) -> float:
     """A calibration's depth fit to the frame (coarse grid), its agreement borne out by the colour across its
     outline: how hypotheses are scored and ranked (registration.DepthFit.score)."""
-    fit, rendered = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
-    return fit.score(outline_contrast(rendered > 0, strided(rgb, K, IOU_STRIDE)[0]))
+    return _coarse_judgement(parts, T_cam_base, T_base_parts, rgb, depth, K)[0]
 
 
 def _explains_frame(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray,
-                    depth: np.ndarray, K: np.ndarray, drawn: np.ndarray | None = None) -> str:
-    """Whether the robot placed at the calibration (`drawn`: its pixels; None: the coarse meshes' on the coarse
-    grid, for a hypothesis not yet refined) explains the frame well enough to be a first estimate (no mask
-    given): enough of it in view, nothing nearer hides most of its pixels with depth, most of those agree, few
-    are seen through, and the image's colour changes across most of its outline (PASSES); SURE when the
-    agreement, the seen-through share and the contrast clear the higher bars."""
+                    depth: np.ndarray, K: np.ndarray, drawn: np.ndarray) -> str:
+    """Whether the robot placed at the calibration (`drawn`: its pixels) explains the frame well enough to be
+    a first estimate (no mask given; `_verdict`), its depth judged on the coarse grid."""
     found, rendered = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
+    return _verdict(found, rendered.size, outline_contrast(drawn, rgb))
+
+
+def _verdict(found: DepthFit, n_pixels: int, contrast: float) -> str:
+    """A calibration's verdict from its depth fit (on a grid of `n_pixels`) and its outline's contrast: enough of
+    it in view, nothing nearer hides most of its pixels with depth, most of those agree, few are seen through, and
+    the image's colour changes across most of its outline (PASSES); SURE when the agreement, the seen-through
+    share and the contrast clear the higher bars."""
     unhidden = found.drawn - found.in_front
-    in_view = found.drawn >= ACCEPT_MIN_SHARE * rendered.size and unhidden >= ACCEPT_UNHIDDEN * found.drawn
-    if not in_view:
-        contrast = 0.0
-    elif drawn is None:
-        contrast = outline_contrast(rendered > 0, strided(rgb, K, IOU_STRIDE)[0])
-    else:
-        contrast = outline_contrast(drawn, rgb)
+    in_view = found.drawn >= ACCEPT_MIN_SHARE * n_pixels and unhidden >= ACCEPT_UNHIDDEN * found.drawn
     if not (in_view and found.agree >= ACCEPT_AGREE * unhidden
             and found.seen_through <= ACCEPT_SEEN_THROUGH * found.drawn and contrast >= ACCEPT_CONTRAST):
         return FAILS

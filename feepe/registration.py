@@ -146,30 +146,42 @@ def near_hypotheses(model: SurfaceModel, cloud: tuple[np.ndarray, np.ndarray], p
     return [T for c in chosen for T in detector.hypotheses(fine[c], fine_normals[c])]
 
 
+class SceneSearch:
+    """One frame's depth made ready for the robot's search once: the robot's PPF model, the depth's points and the
+    scene's points beside its large planes, from which the whole scene and its nearest parts are searched (the
+    estimator's first frame searches the nearest parts only once the whole scene has failed)."""
+
+    def __init__(self, model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 0):
+        self.model, self.detector = model, PpfDetector(model, PPF)
+        self.cloud = depth_cloud(depth, K)
+        self.points, self.normals = scene_points(self.cloud, self.detector.step, np.random.default_rng(seed))
+
+    def hypotheses(self, near: bool = False, whole: bool = True) -> list[np.ndarray]:
+        """T_cam_base hypotheses, strongest vote first (`whole`: the whole scene's; then, with `near`, those of its
+        nearest parts), each refined by ICP on the scene's points; [] when the depth holds too little."""
+        if len(self.points) < 10:
+            return []
+        starts = self.detector.hypotheses(self.points, self.normals) if whole else []
+        if near:
+            starts += near_hypotheses(self.model, self.cloud, self.points, self.detector.step)
+        no_matches = stack([])
+        out = []
+        for T in starts:
+            for gate in np.linspace(*ICP_GATES_M, ICP_ROUNDS):
+                planes = associate(T, [(np.eye(4), self.points)], self.model, gate)
+                if len(planes.target_cam) < 6:
+                    break
+                T, _ = optimize(T, no_matches, OptimizeOptions(max_iterations=10),
+                                [PlaneTerm(planes, PLANE_TOL_M / 3)])
+            if is_new(T, out):
+                out.append(T)
+        return out
+
+
 def register(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 0,
              near: bool = False, whole: bool = True) -> list[np.ndarray]:
-    """T_cam_base hypotheses for the robot whose base-frame surface samples are `model`, strongest vote first
-    (`whole`: the whole scene's; then, with `near`, those of its nearest parts), each refined by ICP on the
-    scene's points; [] when the depth holds too little."""
-    detector = PpfDetector(model, PPF)
-    cloud = depth_cloud(depth, K)
-    points, normals = scene_points(cloud, detector.step, np.random.default_rng(seed))
-    if len(points) < 10:
-        return []
-    starts = detector.hypotheses(points, normals) if whole else []
-    if near:
-        starts += near_hypotheses(model, cloud, points, detector.step)
-    no_matches = stack([])
-    out = []
-    for T in starts:
-        for gate in np.linspace(*ICP_GATES_M, ICP_ROUNDS):
-            planes = associate(T, [(np.eye(4), points)], model, gate)
-            if len(planes.target_cam) < 6:
-                break
-            T, _ = optimize(T, no_matches, OptimizeOptions(max_iterations=10), [PlaneTerm(planes, PLANE_TOL_M / 3)])
-        if is_new(T, out):
-            out.append(T)
-    return out
+    """T_cam_base hypotheses for the robot whose base-frame surface samples are `model` (SceneSearch.hypotheses)."""
+    return SceneSearch(model, depth, K, seed).hypotheses(near, whole)
 
 
 def is_new(T: np.ndarray, known: list[np.ndarray]) -> bool:

@@ -424,9 +424,9 @@ def test_a_first_frame_whose_whole_scene_hypotheses_all_fail_searches_the_neares
     from kernel.bop import read_frame
 
     calls = []
-    register = estimator.register
-    monkeypatch.setattr(estimator, "register", lambda *a, **k: calls.append((k["near"], k.get("whole", True)))
-                        or register(*a, **k))
+    search = estimator.SceneSearch.hypotheses
+    monkeypatch.setattr(estimator.SceneSearch, "hypotheses",
+                        lambda self, **k: calls.append((k["near"], k.get("whole", True))) or search(self, **k))
     scene = sorted((tiny_dataset / "test").iterdir())[0]
     est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
     f = read_frame(scene, ids[0])
