@@ -104,6 +104,10 @@ MIN_DECREASE = 1e-6
 MIN_STEP = 1e-6
 SOLVE_ITERATIONS = 5
 ROUND_MOVED_M = 1e-4
+# A descent that draws the model smaller than this, and than half its start did, has run off: its start is lost
+# (its IoU is nil), and going on cost seconds, as every contour point of a robot a pixel across tests each of its
+# triangles (seed 59's UR10e + 2F-85: a start 2.4 m away ran to 58-820 m, 16 of its first frame's 23 s).
+MIN_SPAN_PX = 16.0
 ICP_MOVED_M = 1e-5
 # The optimisation and the refinement multiply many small matrices (normal equations of N x 6 Jacobians,
 # N x 3 points by 3 x 3 rotations). OpenBLAS's threads cost more than they save there: a 10000 x 6 normal
@@ -738,15 +742,18 @@ class Estimator:
         re-associates). Depth may move the pose only within the masks' own uncertainty: when the result's
         mean contour distance exceeds the masks-only pose's by more than `silhouette_depth_tolerance`
         standard errors, a biased sensor is pulling it off the masks, and the masks-only pose is returned."""
-        T = self._solve(T, frames, sigmas, clouds, models)
-        if clouds:
-            T_masks = self._solve(T, frames, sigmas[-1:], [], models)
+        lost_px = min(MIN_SPAN_PX, self._span_px(T, frames[0]) / 2)
+        T = self._solve(T, frames, sigmas, clouds, models, lost_px)
+        if clouds and self._span_px(T, frames[0]) >= lost_px:
+            T_masks = self._solve(T, frames, sigmas[-1:], [], models, lost_px)
             (with_depth, _), (masks, error) = (contour_fit(self.parts, X, frames) for X in (T, T_masks))
             if with_depth > masks + self.opts.silhouette_depth_tolerance * error:
                 return T_masks
         return T
 
-    def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list, models) -> np.ndarray:
+    def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list, models, lost_px: float = 0.0) -> np.ndarray:
+        """`lost_px`: the descent has run off once it draws the model smaller than this (`_span_px`), where its
+        outline can no longer pull it back; it stops there."""
         no_matches = stack([])
         opts = self.opts
         inner = OptimizeOptions(max_iterations=SOLVE_ITERATIONS, min_decrease=MIN_DECREASE, min_step=MIN_STEP)
@@ -759,6 +766,8 @@ class Estimator:
             if clouds and finest:
                 floor = max(opts.silhouette_min_sigma_px, OWN_MASKS_MIN_SIGMA_PX if self._own_masks else 0.0)
             for _ in range(opts.silhouette_rounds):
+                if self._span_px(T, frames[0]) < lost_px:
+                    return T
                 model = self.parts if finest else self.parts.coarse  # exact at the finest stage
                 terms = [contour_term(model, T, frames, floor, step_px=max(1.0, sigma / 2),
                                       measured=bool(clouds) or finest)]
@@ -771,6 +780,11 @@ class Estimator:
                 if moved < ROUND_MOVED_M:
                     break
         return T
+
+    def _span_px(self, T: np.ndarray, frame: tuple) -> float:
+        """The model's image extent in the frame at calibration T, about (`PartsSilhouette.span_px`)."""
+        T_base_parts, mv = frame
+        return self.parts.span_px(placed(T, T_base_parts), mv.K)
 
 
 def _init_from(frames) -> np.ndarray:

@@ -202,6 +202,17 @@ class PartsSilhouette:
     def _spheres(self) -> tuple[np.ndarray, np.ndarray]:
         return np.array([m.centre for m in self.parts], float), np.array([m.radius for m in self.parts], float)
 
+    def span_px(self, T_cam_parts: np.ndarray, K: np.ndarray) -> float:
+        """The parts' image extent, about (px): the larger side of the box around their bounding spheres' images
+        (radius f r / z each, a little under the true one); inf when a sphere reaches the camera's plane."""
+        centres, radii = self._spheres
+        c = np.einsum("nij,nj->ni", T_cam_parts[:, :3, :3], centres) + T_cam_parts[:, :3, 3]
+        if np.any(c[:, 2] <= radii):
+            return np.inf
+        f = max(K[0, 0], K[1, 1])
+        uv, reach = f * c[:, :2] / c[:, 2:], f * radii / c[:, 2]
+        return float(np.max((uv + reach[:, None]).max(0) - (uv - reach[:, None]).min(0)))
+
     def motion_px(self, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
         """A bound on how far any model point moves in the image between two poses of the parts (T_a, T_b:
         (n, 4, 4); small motions): per part, its bounding sphere's centre shift plus its radius turned through

@@ -550,3 +550,29 @@ def test_with_no_mask_the_next_frames_band_follows_the_whole_frames_motion(tiny_
     parts = np.concatenate([f.T_base_ee[None], view.T_base_links])
     moved = est.parts.motion_px(placed(starts[0], parts), placed(r.T_cam_base, parts), f.K)
     assert est._band_px == pytest.approx(np.clip(BAND_PER_PX * moved, BAND_MIN_PX, BAND_START_PX))
+
+
+def test_a_descent_that_runs_the_robot_out_of_sight_stops(tiny_dataset, monkeypatch):
+    """A descent that draws the robot smaller than MIN_SPAN_PX, and than half its start did, has run off: it
+    stops at the round it ran off in (a robot a pixel across cost seconds a contour); one that only drifts
+    away goes on."""
+    import feepe.estimator as fe
+    from feepe.silhouette import mask_view, placed
+    from kernel.bop import read_frame
+
+    scene = sorted((tiny_dataset / "test").iterdir())[0]
+    est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
+    f = read_frame(scene, ids[0])
+    T_base_parts = np.concatenate([f.T_base_ee[None], _joint_states(robot, links, f).T_base_links])
+    true = meta.T_cam_base
+    frames = [(T_base_parts, mask_view(est.parts.render_depth(placed(true, T_base_parts), f.K, f.depth.shape) > 0,
+                                       f.K))]
+    extracted = []
+    real_term = fe.contour_term
+    monkeypatch.setattr(fe, "contour_term", lambda *a, **k: extracted.append(1) or real_term(*a, **k))
+    for back_m, rounds in ((100.0, 1), (0.01, 9)):  # each solve moves the camera back_m farther back
+        extracted.clear()
+        back = make_T(t=[0.0, 0.0, back_m])
+        monkeypatch.setattr(fe, "optimize", lambda T, obs, options, terms: (back @ T, None))
+        assert np.allclose(est._descend(true, frames, (4.0, 2.0, 1.0), [], None), np.linalg.matrix_power(back, rounds) @ true)
+        assert len(extracted) == rounds

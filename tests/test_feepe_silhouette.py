@@ -17,7 +17,7 @@ from feepe.silhouette import (KEPT, REUSE_PX, PartsSilhouette, SilhouetteModel, 
 from kernel.bop import read_frame, read_scene, split_dir
 from kernel.errors import UserError
 from kernel.template_set import find_template_set
-from kernel.transforms import inv_T, transform_points
+from kernel.transforms import inv_T, make_T, transform_points
 
 K = np.array([[300.0, 0, 80], [0, 300.0, 60], [0, 0, 1]])
 
@@ -77,6 +77,18 @@ def test_image_motion_bound_covers_every_vertex():
         moved = np.linalg.norm(_project(transform_points(T2, V)) - _project(transform_points(T, V)), axis=1).max()
         bound = PartsSilhouette([model]).motion_px(T[None], T2[None], K)
         assert moved <= bound <= 4 * moved + 0.5
+
+
+def test_image_span_bound_covers_the_rendered_mask_and_shrinks_with_distance():
+    boxes = [SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05))), SilhouetteModel(trimesh.creation.box((0.02,) * 3))]
+    parts, T = PartsSilhouette(boxes), _box_pose()
+    placed = np.stack([T, T @ make_T(t=[0.1, 0.0, 0.0])])
+    v, u = np.nonzero(parts.render_depth(placed, K, (120, 160)) > 0)
+    span = parts.span_px(placed, K)
+    assert max(np.ptp(u), np.ptp(v)) <= span <= 3 * max(np.ptp(u), np.ptp(v))
+    away = np.stack([make_T(t=[0.0, 0.0, 9.0]) @ X for X in placed])  # the camera 9 m farther back
+    assert parts.span_px(away, K) < span / 5
+    assert parts.span_px(np.stack([make_T(t=[0.0, 0.0, -T[2, 3]]) @ X for X in placed]), K) == np.inf  # at the camera
 
 
 def test_a_frames_contour_is_reused_until_the_model_moves_half_a_pixel():
