@@ -751,7 +751,7 @@ class Estimator:
                 return T_masks
         return T
 
-    def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list, models, lost_px: float = 0.0) -> np.ndarray:
+    def _solve(self, T: np.ndarray, frames: list, sigmas, clouds: list, models, lost_px: float) -> np.ndarray:
         """`lost_px`: the descent has run off once it draws the model smaller than this (`_span_px`), where its
         outline can no longer pull it back; it stops there."""
         no_matches = stack([])
@@ -782,7 +782,7 @@ class Estimator:
         return T
 
     def _span_px(self, T: np.ndarray, frame: tuple) -> float:
-        """The model's image extent in the frame at calibration T, about (`PartsSilhouette.span_px`)."""
+        """A bound on the model's image extent in the frame at calibration T (`PartsSilhouette.span_px`)."""
         T_base_parts, mv = frame
         return self.parts.span_px(placed(T, T_base_parts), mv.K)
 

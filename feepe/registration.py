@@ -178,12 +178,6 @@ class SceneSearch:
         return out
 
 
-def register(model: SurfaceModel, depth: np.ndarray, K: np.ndarray, seed: int = 0,
-             near: bool = False, whole: bool = True) -> list[np.ndarray]:
-    """T_cam_base hypotheses for the robot whose base-frame surface samples are `model` (SceneSearch.hypotheses)."""
-    return SceneSearch(model, depth, K, seed).hypotheses(near, whole)
-
-
 def is_new(T: np.ndarray, known: list[np.ndarray]) -> bool:
     """Whether the calibration T differs from each of `known` by more than SAME_DEG or SAME_M: of several
     near-equal hypotheses one is kept."""

@@ -202,16 +202,27 @@ class PartsSilhouette:
     def _spheres(self) -> tuple[np.ndarray, np.ndarray]:
         return np.array([m.centre for m in self.parts], float), np.array([m.radius for m in self.parts], float)
 
+    def sphere_boxes(self, T_cam_parts: np.ndarray, K: np.ndarray) -> np.ndarray | None:
+        """Image boxes that hold each part's bounding sphere, (n, 4): first and last column, first and last row
+        (px, not clipped to the image); None when a sphere reaches the near plane, whose image no box holds."""
+        boxes = []
+        for m, T in zip(self.parts, T_cam_parts):
+            (x, y, z), r = T[:3, :3] @ m.centre + T[:3, 3], m.radius
+            if z - r <= raster.NEAR_M:
+                return None
+            # over the cube around the sphere X/Z and Y/Z are extreme at its corners
+            corners = np.array([(a, b, c) for a in (x - r, x + r) for b in (y - r, y + r) for c in (z - r, z + r)])
+            uv = project(corners, K, min_z=raster.NEAR_M)
+            boxes.append((uv[:, 0].min(), uv[:, 0].max(), uv[:, 1].min(), uv[:, 1].max()))
+        return np.array(boxes)
+
     def span_px(self, T_cam_parts: np.ndarray, K: np.ndarray) -> float:
-        """The parts' image extent, about (px): the larger side of the box around their bounding spheres' images
-        (radius f r / z each, a little under the true one); inf when a sphere reaches the camera's plane."""
-        centres, radii = self._spheres
-        c = np.einsum("nij,nj->ni", T_cam_parts[:, :3, :3], centres) + T_cam_parts[:, :3, 3]
-        if np.any(c[:, 2] <= radii):
+        """A bound on the parts' image extent (px): the larger side of the box around their `sphere_boxes`; inf
+        when a sphere reaches the near plane."""
+        boxes = self.sphere_boxes(T_cam_parts, K)
+        if boxes is None:
             return np.inf
-        f = max(K[0, 0], K[1, 1])
-        uv, reach = f * c[:, :2] / c[:, 2:], f * radii / c[:, 2]
-        return float(np.max((uv + reach[:, None]).max(0) - (uv - reach[:, None]).min(0)))
+        return float(max(boxes[:, 1].max() - boxes[:, 0].min(), boxes[:, 3].max() - boxes[:, 2].min()))
 
     def motion_px(self, T_a: np.ndarray, T_b: np.ndarray, K: np.ndarray) -> float:
         """A bound on how far any model point moves in the image between two poses of the parts (T_a, T_b:
@@ -483,17 +494,14 @@ def iou_bound(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView, str
     total = np.count_nonzero(seen)
     if not total:
         return 1.0
+    found = model.sphere_boxes(T_cam_parts, K)
+    if found is None:
+        return 1.0
     h, w = seen.shape
     boxes = np.zeros(seen.shape, bool)
-    for m, T in zip(model.parts, T_cam_parts):
-        (x, y, z), r = T[:3, :3] @ m.centre + T[:3, 3], m.radius
-        if z - r <= raster.NEAR_M:  # the sphere reaches the near plane: no box holds its image
-            return 1.0
-        # over the cube around the sphere X/Z and Y/Z are extreme at its corners
-        corners = np.array([(a, b, c) for a in (x - r, x + r) for b in (y - r, y + r) for c in (z - r, z + r)])
-        uv = project(corners, K, min_z=raster.NEAR_M)
-        u0, u1 = max(int(np.floor(uv[:, 0].min())), 0), min(int(np.ceil(uv[:, 0].max())), w - 1)
-        v0, v1 = max(int(np.floor(uv[:, 1].min())), 0), min(int(np.ceil(uv[:, 1].max())), h - 1)
+    for u_min, u_max, v_min, v_max in found:
+        u0, u1 = max(int(np.floor(u_min)), 0), min(int(np.ceil(u_max)), w - 1)
+        v0, v1 = max(int(np.floor(v_min)), 0), min(int(np.ceil(v_max)), h - 1)
         boxes[v0:v1 + 1, u0:u1 + 1] = True  # an empty slice when the box misses the image
     return np.count_nonzero(seen & boxes) / total
 

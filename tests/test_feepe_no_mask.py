@@ -10,8 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from feepe import raster
 from feepe.icp import SurfaceModel
-from feepe.registration import (CONTRAST_RGB, PPF, background_planes, depth_cloud, depth_fit, is_new,
-                                near_hypotheses, outline_contrast, parts, register, scene_points)
+from feepe.registration import (CONTRAST_RGB, PPF, SceneSearch, background_planes, depth_cloud, depth_fit, is_new,
+                                near_hypotheses, outline_contrast, parts, scene_points)
 from feepe.robot_starts import RobotSamples
 from feepe.segmentation import ColourModel, segment, trust
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, iou
@@ -66,7 +66,7 @@ def test_the_arm_is_found_in_a_depth_image_with_a_floor_and_a_wall():
     parts, T_parts, depth, _, _, _ = _scene()
     depth = np.where(depth > 0, depth + np.random.default_rng(1).normal(0, 0.002, depth.shape), 0.0)
     model = SurfaceModel(*RobotSamples.of([p.mesh for p in parts.parts]).placed(np.repeat(np.eye(4)[None], 4, 0)))
-    found = register(model, depth, K)
+    found = SceneSearch(model, depth, K).hypotheses()
     assert found
     errors = [(np.degrees(rotation_angle(T[:3, :3], T_CAM_BASE[:3, :3])), np.linalg.norm(T[:3, 3] - T_CAM_BASE[:3, 3]))
               for T in found]
@@ -125,17 +125,18 @@ def test_an_arm_seen_close_before_a_far_straying_background_is_found_in_the_near
 
 
 def test_the_nearest_parts_are_searched_alone_once_the_whole_scene_has_failed():
-    """register(whole=False): the nearest parts' hypotheses only, refined as the whole scene's are (the
+    """SceneSearch.hypotheses(whole=False): the nearest parts' hypotheses only, refined as the whole scene's are (the
     estimator's near pass on a first frame whose whole-scene hypotheses all fail); nothing searched, nothing
     found."""
     parts, _, depth, _, _, _ = _scene()
     depth = np.where(depth > 0, depth + np.random.default_rng(1).normal(0, 0.002, depth.shape), 0.0)
     model = SurfaceModel(*RobotSamples.of([p.mesh for p in parts.parts]).placed(np.repeat(np.eye(4)[None], 4, 0)))
-    near = register(model, depth, K, near=True, whole=False)
+    search = SceneSearch(model, depth, K)
+    near = search.hypotheses(near=True, whole=False)
     assert any(np.linalg.norm(T[:3, 3] - T_CAM_BASE[:3, 3]) < 0.01
                and np.degrees(rotation_angle(T[:3, :3], T_CAM_BASE[:3, :3])) < 1 for T in near)
-    assert len(near) < len(register(model, depth, K, near=True))
-    assert register(model, depth, K, near=False, whole=False) == []
+    assert len(near) < len(search.hypotheses(near=True))
+    assert search.hypotheses(near=False, whole=False) == []
 
 
 def test_hypotheses_at_one_place_turned_apart_are_two_and_near_equal_ones_one():
