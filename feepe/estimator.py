@@ -389,7 +389,7 @@ class Estimator:
                 return FrameResult(None, None, 0.0, 0, 0, timings)
             t0 = time.perf_counter()
             seen = segment(self.parts.coarse, T, T_base_parts, rgb, depth, K, self.colour, self._band_px,
-                           self._depth_sigma, robot_mask=robot_mask, ee_mask=ee_mask)
+                           self._depth_sigma, robot_mask=robot_mask, ee_mask=ee_mask, cover=self.T_cam_base is not None)
             timings["segmentation"] = 1e3 * (time.perf_counter() - t0)
             self._refresh_key_frames(T)
         # once a calibration stands, the template path's starts never beat its warm refinement (four stereo
@@ -458,7 +458,7 @@ class Estimator:
         """The frame segmented again at the refined calibration T_new, and the colours learned from it."""
         t0, before = time.perf_counter(), found.segmentation
         seen = segment(self.parts.coarse, T_new, found.parts, rgb, depth, K, self.colour, BAND_MIN_PX,
-                       self._depth_sigma, robot_mask=before.robot_mask, ee_mask=before.ee_mask)
+                       self._depth_sigma, robot_mask=before.robot_mask, ee_mask=before.ee_mask, cover=before.cover)
         self.colour.learn(rgb, seen)
         self._depth_sigma = depth_sigma(seen)
         found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
@@ -534,7 +534,7 @@ class Estimator:
         for frame, rgb, K, T_base_ee, T_base_parts in self._waiting:
             no_depth = np.zeros(rgb.shape[:2])
             seen = segment(self.parts.coarse, T_cam_base, T_base_parts, rgb, no_depth, K, self.colour, self._band_px,
-                           self._depth_sigma)
+                           self._depth_sigma, cover=True)
             found = FrameCandidates(np.eye(3), [], 0, {}, segmentation=seen, parts=T_base_parts,
                                     silhouette=mask_view(seen.robot, K, no_depth))
             self.pool.consider(MemoryEntry(frame, T_base_ee, found), need_candidates=False)
@@ -601,7 +601,8 @@ class Estimator:
             K = entry.found.silhouette.K
             if self.parts.motion_px(placed(seen.T_cam_base, entry.found.parts), placed(T, entry.found.parts), K) > 1.0:
                 again = segment(self.parts.coarse, T, entry.found.parts, seen.rgb, seen.depth, K, self.colour,
-                                BAND_MIN_PX, self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask)
+                                BAND_MIN_PX, self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask,
+                                cover=seen.cover)
                 entry.found.segmentation, entry.found.silhouette = again, mask_view(again.robot, K, seen.depth)
                 if entry.found.surface is not None:
                     entry.found.cloud = _robot_cloud(again, K, self.opts.depth_window_px)

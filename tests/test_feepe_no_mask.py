@@ -343,6 +343,35 @@ def test_a_dark_image_tells_the_outline_as_a_bright_one_does():
     assert outline_contrast(np.roll(drawn, 140, axis=1), dark) < 0.1
 
 
+def test_an_outline_pixel_is_robot_where_the_robot_covers_most_of_it_not_where_the_model_is_drawn():
+    """A bright robot on a dark background, its left edge pixel 70 % covered and its right one 30 %, the model
+    drawn a pixel to the right. Colour histograms know neither blend, so the prior puts both edge pixels on the
+    model's side; read by their cover (`cover`, depth silent: RGB only) each goes where most of it lies, and a
+    blend of too little contrast is left to the prior."""
+    from feepe.segmentation import ColourModel, model_view, robot_logodds
+
+    rgb = np.full((40, 60, 3), 40, np.uint8)
+    rgb[:, 20:40] = 200
+    rgb[:, 19] = 40 + 0.7 * 160
+    rgb[:, 40] = 40 + 0.3 * 160
+    drawn = np.zeros((40, 60))
+    drawn[:, 20:41] = 1.0  # the model: columns 20-40, the truth at cover 0.5: 19-39
+    view = model_view([drawn])
+    colour = ColourModel()
+    colour.update(rgb, rgb[..., 0] == 200, rgb[..., 0] == 40)
+    by_prior = robot_logodds(rgb, None, view, colour, 2.0, 0.01, False) > 0
+    by_cover = robot_logodds(rgb, None, view, colour, 2.0, 0.01, False, cover=True) > 0
+    assert not by_prior[:, 19].any() and by_prior[:, 40].all()
+    assert by_cover[:, 19].all() and not by_cover[:, 40].any()
+    assert (by_cover[:, 20:40] == by_prior[:, 20:40]).all()
+    assert not by_cover[:, :19].any() and not by_cover[:, 41:].any()
+    faint = np.where(rgb > 40, 40 + (rgb - 40) // 20, 40).astype(np.uint8)  # 8 levels apart: no cover read
+    colour = ColourModel()
+    colour.update(faint, rgb[..., 0] == 200, rgb[..., 0] == 40)
+    assert (robot_logodds(faint, None, view, colour, 2.0, 0.01, False, cover=True)
+            == robot_logodds(faint, None, view, colour, 2.0, 0.01, False)).all()
+
+
 def test_black_or_white_on_both_sides_is_not_judged_and_does_not_bear_an_outline_out():
     """Where both sides of the outline are black, or saturated white, colour cannot tell the robot from its
     background (held-out seed 109: a black gripper against a black shadow; the hard exit set: a lit arm against an
