@@ -171,18 +171,15 @@ def robot_logodds(rgb: np.ndarray, depth: np.ndarray | None, view: ModelView, co
     `cover`: on the outline where depth and colour are silent, the pixel's cover (`edge_alpha_logodds`)."""
     prior = np.clip(view.inside / max(band_px, 0.5) * PRIOR_LOGODDS, PRIOR_FLOOR, PRIOR_LOGODDS)
     colours = colour.logodds(rgb)
-    logodds = prior + colours
-    silent = np.ones(prior.shape, bool)
-    if depth is not None:
-        said = depth_logodds(depth, view, sigma_m, sensor)
-        logodds += said
-        silent = said == 0
+    said = np.zeros(prior.shape, np.float32) if depth is None else depth_logodds(depth, view, sigma_m, sensor)
+    logodds = prior + colours + said
     if not cover:
         return logodds.astype(np.float32)
-    alpha = edge_alpha_logodds(rgb, view, logodds, silent & (np.abs(colours) < EDGE_ALPHA_COLOUR_MAX))
+    alpha = edge_alpha_logodds(rgb, view, logodds, (said == 0) & (np.abs(colours) < EDGE_ALPHA_COLOUR_MAX))
     return np.where(alpha != 0, prior + alpha + (logodds - prior - colours), logodds).astype(np.float32)
 
 
+CONFIDENT_LOGODDS = 2.2  # P(robot) above 0.9 (below 0.1 for the background): ColourModel.learn's confident pixels
 EDGE_ALPHA_PX = 2.0  # pixels this close to the predicted outline, undecided by depth and colour: read by their cover
 EDGE_ALPHA_WINDOW = 9  # px: the window whose confident pixels give the local robot and background colours
 EDGE_ALPHA_CONTRAST = 24.0  # those two colours at least this far apart (8-bit RGB distance) for a cover to be read
@@ -207,8 +204,8 @@ def edge_alpha_logodds(rgb: np.ndarray, view: ModelView, logodds: np.ndarray, si
         total = cv2.boxFilter(c * on[..., None], -1, size, normalize=False)
         return total / np.maximum(w, 1.0)[..., None], w
 
-    F, n_f = local_mean((logodds > 2.2) & (view.inside >= EDGE_PX))
-    B, n_b = local_mean((logodds < -2.2) & (view.inside <= -EDGE_PX))
+    F, n_f = local_mean((logodds > CONFIDENT_LOGODDS) & (view.inside >= EDGE_PX))
+    B, n_b = local_mean((logodds < -CONFIDENT_LOGODDS) & (view.inside <= -EDGE_PX))
     d = F - B
     contrast = np.sqrt(np.sum(d * d, -1))
     cover = np.sum((c - B) * d, -1) / np.maximum(contrast * contrast, 1e-6)

@@ -13,7 +13,7 @@ from feepe.icp import SurfaceModel
 from feepe.registration import (CONTRAST_RGB, PPF, SceneSearch, background_planes, depth_cloud, depth_fit, is_new,
                                 near_hypotheses, outline_contrast, parts, scene_points)
 from feepe.robot_starts import RobotSamples
-from feepe.segmentation import ColourModel, segment, trust
+from feepe.segmentation import ColourModel, model_view, robot_logodds, segment, trust
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, iou
 from kernel.transforms import inv_T, make_T, rotation_angle
 from tests.test_feepe_robot_starts import _arm
@@ -348,8 +348,6 @@ def test_an_outline_pixel_is_robot_where_the_robot_covers_most_of_it_not_where_t
     drawn a pixel to the right. Colour histograms know neither blend, so the prior puts both edge pixels on the
     model's side; read by their cover (`cover`, depth silent: RGB only) each goes where most of it lies, and a
     blend of too little contrast is left to the prior."""
-    from feepe.segmentation import ColourModel, model_view, robot_logodds
-
     rgb = np.full((40, 60, 3), 40, np.uint8)
     rgb[:, 20:40] = 200
     rgb[:, 19] = 40 + 0.7 * 160
