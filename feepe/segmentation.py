@@ -176,7 +176,7 @@ def robot_logodds(rgb: np.ndarray, depth: np.ndarray | None, view: ModelView, co
     if not cover:
         return logodds.astype(np.float32)
     alpha = edge_alpha_logodds(rgb, view, logodds, (said == 0) & (np.abs(colours) < EDGE_ALPHA_COLOUR_MAX))
-    return np.where(alpha != 0, prior + alpha + (logodds - prior - colours), logodds).astype(np.float32)
+    return np.where(alpha != 0, prior + alpha, logodds).astype(np.float32)  # where read, depth is silent
 
 
 CONFIDENT_LOGODDS = 2.2  # P(robot) above 0.9 (below 0.1 for the background): ColourModel.learn's confident pixels
