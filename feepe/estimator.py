@@ -28,8 +28,8 @@ from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
 from feepe.registration import DepthFit, SceneSearch, depth_fit, is_new, outline_contrast
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
 from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, segment
-from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, iou_bound, mask_view,
-                              mean_iou, placed, strided)
+from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, depth_planes, iou_bound,
+                              mask_view, mean_iou, placed, strided)
 from feepe.symmetry import consensus
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
@@ -778,7 +778,7 @@ class Estimator:
                 terms = [contour_term(model, T, frames, floor, step_px=max(1.0, sigma / 2),
                                       measured=bool(clouds) or finest)]
                 if clouds:
-                    planes = associate(T, clouds, models, opts.icp_gate_m)
+                    planes = depth_planes(T, [mv for _, mv in frames], clouds, models, opts.icp_gate_m)
                     terms.append(sensor_plane_term(planes, T, opts.depth_sigma_m, opts.depth_sigma_z2))
                 T_new, _ = optimize(T, no_matches, inner, terms=terms)
                 moved = np.linalg.norm(T_new[:3, 3] - T[:3, 3])

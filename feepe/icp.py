@@ -121,6 +121,67 @@ def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]
     return PlaneTerms(np.concatenate(base), np.concatenate(normals), np.concatenate(target))
 
 
+@dataclass
+class Pairing:
+    """One frame's depth points paired with their nearest model points, and what tells whether each pairing
+    still holds once the calibration has moved: the point's place in the model's frame when it was paired, its
+    distance then to the nearest model point (inf: none within the search's reach) and a lower bound on the
+    distance to the second nearest (to the nearest, with none within the reach: the reach). A point moved by d
+    keeps its nearest while 2 d is less than the gap between the two (the triangle inequality)."""
+    placed: np.ndarray  # (N, 3) model frame
+    nearest: np.ndarray  # (N,) model point index (len(model.points): none within the reach)
+    first: np.ndarray  # (N,)
+    beyond: np.ndarray  # (N,)
+
+
+def associate_again(T_cam_base: np.ndarray, frame: tuple[np.ndarray, np.ndarray], model: SurfaceModel,
+                    gate_m: float, kept: Pairing | None = None) -> tuple[PlaneTerms, Pairing]:
+    """`associate` for one frame (T_base_model, observed cloud), the same pairs, with the KD-tree queried again only
+    for the points whose last pairing (`kept`, made at another calibration) may no longer hold; and the pairing to
+    keep. Points are searched out to twice the gate, so that one with no model point that near stays beyond the
+    gate while it moves less than the gate."""
+    T_base_model, cloud = frame
+    n, reach = len(cloud), 2.0 * gate_m
+    if kept is None or len(kept.placed) != n:
+        kept = Pairing(np.full((n, 3), np.inf), np.full(n, len(model.points)), np.full(n, np.inf), np.zeros(n))
+    placed, redo, near = np.empty((n, 3)), np.empty(n, np.bool_), np.empty(n, np.bool_)
+    _still_paired(np.ascontiguousarray(inv_T(T_cam_base @ T_base_model)), np.ascontiguousarray(cloud, dtype=float),
+                  kept.placed, kept.first, kept.beyond, kept.nearest, model.points, gate_m, placed, redo, near)
+    if redo.any():
+        dist, idx = model.tree.query(placed[redo], k=2, distance_upper_bound=reach)
+        kept = Pairing(kept.placed.copy(), kept.nearest.copy(), kept.first.copy(), kept.beyond.copy())
+        kept.placed[redo], kept.nearest[redo], kept.first[redo] = placed[redo], idx[:, 0], dist[:, 0]
+        kept.beyond[redo] = np.minimum(np.where(np.isfinite(dist[:, 0]), dist[:, 1], reach), reach)
+        near[redo] = dist[:, 0] < gate_m
+    nearest = kept.nearest[near]
+    return PlaneTerms(transform_points(T_base_model, model.points[nearest]),
+                      model.normals[nearest] @ T_base_model[:3, :3].T, cloud[near]), kept
+
+
+@numba.njit(cache=True, nogil=True)
+def _still_paired(A, cloud, ref, first, beyond, nearest, points, gate, placed, redo, near):
+    """associate_again's test, one pass: each point placed by A (camera to model frame); whether it moved from its
+    place when paired (`ref`) by half the gap between its nearest and second nearest model point then (or, with
+    none within the reach, by that lower bound less the gate), so that its pairing may have changed (`redo`); else
+    whether its nearest lies within the gate (`near`)."""
+    n_model = points.shape[0]
+    for i in range(cloud.shape[0]):
+        for r in range(3):
+            placed[i, r] = A[r, 0] * cloud[i, 0] + A[r, 1] * cloud[i, 1] + A[r, 2] * cloud[i, 2] + A[r, 3]
+        moved = np.sqrt((placed[i, 0] - ref[i, 0]) ** 2 + (placed[i, 1] - ref[i, 1]) ** 2
+                        + (placed[i, 2] - ref[i, 2]) ** 2)
+        if np.isfinite(first[i]):
+            redo[i] = 2.0 * moved >= beyond[i] - first[i]
+        else:
+            redo[i] = not moved < beyond[i] - gate
+        near[i] = False
+        if not redo[i] and nearest[i] < n_model:
+            j = nearest[i]
+            d = np.sqrt((placed[i, 0] - points[j, 0]) ** 2 + (placed[i, 1] - points[j, 1]) ** 2
+                        + (placed[i, 2] - points[j, 2]) ** 2)
+            near[i] = d < gate
+
+
 class PlaneTerm:
     """Point-to-plane residuals, each distance over its own sigma (m); a residual block for `optimize`.
     The normal is held fixed within a step, as usual for point-to-plane."""

@@ -22,6 +22,7 @@ import trimesh
 
 from feepe import raster
 from feepe.depth import depth_at
+from feepe.icp import PlaneTerms, SurfaceModel, associate_again
 from feepe.optimize import jacobian_row, robust_sigma
 from kernel.camera import project
 from kernel.errors import UserError
@@ -54,6 +55,8 @@ class MaskView:
     # outlines then stay put.
     contours: dict = field(default_factory=dict, repr=False)
     ious: dict = field(default_factory=dict, repr=False)  # the same for the mask IoU per model and stride
+    # the frame's depth points' last pairing with the model per association gate (`depth_planes`)
+    pairings: dict = field(default_factory=dict, repr=False)
 
     @property
     def sdt(self) -> np.ndarray:
@@ -404,6 +407,21 @@ def contour_term(model: PartsSilhouette, T_cam_base: np.ndarray, frames: list[tu
         spread = [robust_sigma(e[a:b]) if b > a else 0.0 for a, b in zip(term.bounds[:-1], term.bounds[1:])]
         term.sigma_px = np.maximum(sigma_px, spread)
     return term
+
+
+def depth_planes(T_cam_base: np.ndarray, views: list[MaskView], clouds: list[tuple[np.ndarray, np.ndarray]],
+                 surfaces: SurfaceModel | list[SurfaceModel], gate_m: float) -> PlaneTerms:
+    """`feepe.icp.associate` of each view's frame (`clouds` and `surfaces` as it takes them, one per view), the
+    nearest-point queries made again only where a pairing kept on the view may have changed (`associate_again`): a
+    new key frame moves the calibration a little, and the other frames' 12000 points each were then most of a
+    frame's cost (issue 34)."""
+    surfaces = surfaces if isinstance(surfaces, list) else [surfaces] * len(clouds)
+    found = []
+    for mv, cloud, surface in zip(views, clouds, surfaces):
+        planes, mv.pairings[gate_m] = associate_again(T_cam_base, cloud, surface, gate_m, mv.pairings.get(gate_m))
+        found.append(planes)
+    return PlaneTerms(*(np.concatenate([getattr(p, name) for p in found] + [np.zeros((0, 3))])
+                        for name in ("base_points", "base_normals", "target_cam")))
 
 
 def visible_contour(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView,

@@ -9,8 +9,8 @@ from scipy.spatial.transform import Rotation
 from feepe.candidates import Candidate
 from feepe.crop import crop_around_mask
 from feepe.depth import normal_map
-from feepe.icp import (WINDOW_BIAS_MAX_M, PlaneTerm, PlaneTerms, SurfaceModel, associate, depth_agreement,
-                       depth_distances, robust_scale, window_bias, without_window_bias)
+from feepe.icp import (WINDOW_BIAS_MAX_M, PlaneTerm, PlaneTerms, SurfaceModel, associate, associate_again,
+                       depth_agreement, depth_distances, robust_scale, window_bias, without_window_bias)
 from feepe.matching import best_buddies
 from feepe.memory import MemoryEntry, MemoryPool
 from feepe.optimize import OptimizeOptions, _step, optimize, robust_sigma, stack
@@ -138,6 +138,32 @@ def test_plane_term_rows_match_numpy_and_finite_differences():
         x[k] = 1e-6
         numeric = (fixed_normal(_step(T, x)) - fixed_normal(_step(T, -x))) / 2e-6
         assert np.allclose(numeric, J[:, 0, k], rtol=1e-5, atol=1e-3)
+
+
+def test_pairs_kept_from_another_calibration_are_the_pairs_made_again():
+    """associate_again along a calibration that drifts a little each step (as from key frame to key frame) and
+    with the gate shrinking and growing: the same pairs as associating afresh every time, points 3 cm off the
+    surface (beyond the gate) included; at a calibration that did not move, the kept pairing is taken whole."""
+    rng = np.random.default_rng(7)
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    points, faces = trimesh.sample.sample_surface_even(mesh, 2000, seed=0)
+    model = SurfaceModel(np.asarray(points), mesh.face_normals[faces])
+    T_base_model = make_T(Rotation.from_euler("xyz", [0.2, 0.1, -0.3]).as_matrix(), [0.3, 0.0, 0.4])
+    T_cam_base = make_T(Rotation.from_euler("xyz", [2.5, 0.2, -0.4]).as_matrix(), [0.05, -0.02, 0.9])
+    seen = np.asarray(trimesh.sample.sample_surface(mesh, 3000, seed=1)[0]) * rng.uniform(0.97, 1.03, (3000, 1))
+    seen[:300] *= 1.3
+    frame = (T_base_model, transform_points(T_cam_base @ T_base_model, seen))
+    kept, T, taken = None, T_cam_base, 0
+    for i, gate in enumerate([0.1, 0.05, 0.02, 0.01, 0.03] * 4):
+        T = make_T(Rotation.from_rotvec(rng.normal(0, 0.002, 3)).as_matrix(), rng.normal(0, 0.001, 3)) @ T
+        fresh = associate(T, [frame], model, gate)
+        again, kept = associate_again(T, frame, model, gate, kept)
+        for name in ("base_points", "base_normals", "target_cam"):
+            assert np.array_equal(getattr(fresh, name), getattr(again, name)), (i, gate, name)
+        taken += len(fresh.target_cam)
+    assert 0 < taken < 20 * 3000
+    planes, same = associate_again(T, frame, model, 0.03, kept)
+    assert same is kept and np.array_equal(planes.target_cam, associate(T, [frame], model, 0.03).target_cam)
 
 
 def test_depth_agreement_tells_the_right_calibration_from_a_turned_one():
