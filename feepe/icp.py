@@ -127,7 +127,9 @@ class Pairing:
     still holds once the calibration has moved: the point's place in the model's frame when it was paired, its
     distance then to the nearest model point (inf: none within the search's reach) and a lower bound on the
     distance to the second nearest (to the nearest, with none within the reach: the reach). A point moved by d
-    keeps its nearest while 2 d is less than the gap between the two (the triangle inequality)."""
+    keeps its nearest while 2 d is less than the gap between the two (the triangle inequality), whichever point
+    of whichever cloud stands there: the pairing belongs to its model alone."""
+    model: SurfaceModel
     placed: np.ndarray  # (N, 3) model frame
     nearest: np.ndarray  # (N,) model point index (len(model.points): none within the reach)
     first: np.ndarray  # (N,)
@@ -142,14 +144,14 @@ def associate_again(T_cam_base: np.ndarray, frame: tuple[np.ndarray, np.ndarray]
     gate while it moves less than the gate."""
     T_base_model, cloud = frame
     n, reach = len(cloud), 2.0 * gate_m
-    if kept is None or len(kept.placed) != n:
-        kept = Pairing(np.full((n, 3), np.inf), np.full(n, len(model.points)), np.full(n, np.inf), np.zeros(n))
+    if kept is None or kept.model is not model or len(kept.placed) != n:
+        kept = Pairing(model, np.full((n, 3), np.inf), np.full(n, len(model.points)), np.full(n, np.inf), np.zeros(n))
     placed, redo, near = np.empty((n, 3)), np.empty(n, np.bool_), np.empty(n, np.bool_)
     _still_paired(np.ascontiguousarray(inv_T(T_cam_base @ T_base_model)), np.ascontiguousarray(cloud, dtype=float),
                   kept.placed, kept.first, kept.beyond, kept.nearest, model.points, gate_m, placed, redo, near)
     if redo.any():
         dist, idx = model.tree.query(placed[redo], k=2, distance_upper_bound=reach)
-        kept = Pairing(kept.placed.copy(), kept.nearest.copy(), kept.first.copy(), kept.beyond.copy())
+        kept = Pairing(model, kept.placed.copy(), kept.nearest.copy(), kept.first.copy(), kept.beyond.copy())
         kept.placed[redo], kept.nearest[redo], kept.first[redo] = placed[redo], idx[:, 0], dist[:, 0]
         kept.beyond[redo] = np.minimum(np.where(np.isfinite(dist[:, 0]), dist[:, 1], reach), reach)
         near[redo] = dist[:, 0] < gate_m

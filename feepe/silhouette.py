@@ -413,8 +413,8 @@ def depth_planes(T_cam_base: np.ndarray, views: list[MaskView], clouds: list[tup
                  surfaces: SurfaceModel | list[SurfaceModel], gate_m: float) -> PlaneTerms:
     """`feepe.icp.associate` of each view's frame (`clouds` and `surfaces` as it takes them, one per view), the
     nearest-point queries made again only where a pairing kept on the view may have changed (`associate_again`): a
-    new key frame moves the calibration a little, and the other frames' 12000 points each were then most of a
-    frame's cost (issue 34)."""
+    new key frame moves the calibration a little, and pairing the other frames' 12000 points each afresh was a
+    fifth of a later frame's cost (issue 34)."""
     surfaces = surfaces if isinstance(surfaces, list) else [surfaces] * len(clouds)
     found = []
     for mv, cloud, surface in zip(views, clouds, surfaces):

@@ -143,7 +143,8 @@ def test_plane_term_rows_match_numpy_and_finite_differences():
 def test_pairs_kept_from_another_calibration_are_the_pairs_made_again():
     """associate_again along a calibration that drifts a little each step (as from key frame to key frame) and
     with the gate shrinking and growing: the same pairs as associating afresh every time, points 3 cm off the
-    surface (beyond the gate) included; at a calibration that did not move, the kept pairing is taken whole."""
+    surface (beyond the gate) included; at a calibration that did not move, the kept pairing is taken whole, and
+    for another model not at all."""
     rng = np.random.default_rng(7)
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
     points, faces = trimesh.sample.sample_surface_even(mesh, 2000, seed=0)
@@ -164,6 +165,9 @@ def test_pairs_kept_from_another_calibration_are_the_pairs_made_again():
     assert 0 < taken < 20 * 3000
     planes, same = associate_again(T, frame, model, 0.03, kept)
     assert same is kept and np.array_equal(planes.target_cam, associate(T, [frame], model, 0.03).target_cam)
+    larger = SurfaceModel(model.points * 1.02, model.normals)  # a pairing belongs to its model: not taken for another
+    planes, _ = associate_again(T, frame, larger, 0.03, kept)
+    assert np.array_equal(planes.base_points, associate(T, [frame], larger, 0.03).base_points)
 
 
 def test_depth_agreement_tells_the_right_calibration_from_a_turned_one():
