@@ -83,6 +83,19 @@ class PlaneTerms:
     base_normals: np.ndarray  # (N, 3) their normals in the base frame
     target_cam: np.ndarray  # (N, 3) the observed depth points, camera frame
 
+    @classmethod
+    def of_pairs(cls, T_base_model: np.ndarray, model: SurfaceModel, nearest: np.ndarray,
+                 target_cam: np.ndarray) -> "PlaneTerms":
+        """The observed points `target_cam` with the model points `nearest` (indices) they pair with, the model
+        placed at T_base_model."""
+        return cls(transform_points(T_base_model, model.points[nearest]),
+                   model.normals[nearest] @ T_base_model[:3, :3].T, target_cam)
+
+    @classmethod
+    def joined(cls, parts: list["PlaneTerms"]) -> "PlaneTerms":
+        return cls(*(np.concatenate([getattr(p, name) for p in parts] + [np.zeros((0, 3))])
+                     for name in ("base_points", "base_normals", "target_cam")))
+
 
 def _nearest(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]],
              model: SurfaceModel | list[SurfaceModel],
@@ -108,17 +121,12 @@ def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]
     """frames: (T_base_ee, observed cloud) each; each observed point pairs with its nearest model point
     within `gate_m` (`model`: one for all frames, or one per frame)."""
     frames, models, dist, idx = _nearest(T_cam_base, frames, model, gate_m)
-    if not frames:
-        return PlaneTerms(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
     ends = np.cumsum([len(cloud) for _, cloud in frames])
-    base, normals, target = [], [], []
+    parts = []
     for (T_base_ee, cloud), m, end in zip(frames, models, ends):
         ok = np.isfinite(dist[end - len(cloud):end])
-        nearest = idx[end - len(cloud):end][ok]
-        base.append(transform_points(T_base_ee, m.points[nearest]))
-        normals.append(m.normals[nearest] @ T_base_ee[:3, :3].T)
-        target.append(cloud[ok])
-    return PlaneTerms(np.concatenate(base), np.concatenate(normals), np.concatenate(target))
+        parts.append(PlaneTerms.of_pairs(T_base_ee, m, idx[end - len(cloud):end][ok], cloud[ok]))
+    return PlaneTerms.joined(parts)
 
 
 @dataclass
@@ -153,11 +161,9 @@ def associate_again(T_cam_base: np.ndarray, frame: tuple[np.ndarray, np.ndarray]
         dist, idx = model.tree.query(placed[redo], k=2, distance_upper_bound=reach)
         kept = Pairing(model, kept.placed.copy(), kept.nearest.copy(), kept.first.copy(), kept.beyond.copy())
         kept.placed[redo], kept.nearest[redo], kept.first[redo] = placed[redo], idx[:, 0], dist[:, 0]
-        kept.beyond[redo] = np.minimum(np.where(np.isfinite(dist[:, 0]), dist[:, 1], reach), reach)
+        kept.beyond[redo] = np.minimum(dist[:, 1], reach)  # the reach where none lies within it
         near[redo] = dist[:, 0] < gate_m
-    nearest = kept.nearest[near]
-    return PlaneTerms(transform_points(T_base_model, model.points[nearest]),
-                      model.normals[nearest] @ T_base_model[:3, :3].T, cloud[near]), kept
+    return PlaneTerms.of_pairs(T_base_model, model, kept.nearest[near], cloud[near]), kept
 
 
 @numba.njit(cache=True, nogil=True)

@@ -420,8 +420,7 @@ def depth_planes(T_cam_base: np.ndarray, views: list[MaskView], clouds: list[tup
     for mv, cloud, surface in zip(views, clouds, surfaces):
         planes, mv.pairings[gate_m] = associate_again(T_cam_base, cloud, surface, gate_m, mv.pairings.get(gate_m))
         found.append(planes)
-    return PlaneTerms(*(np.concatenate([getattr(p, name) for p in found] + [np.zeros((0, 3))])
-                        for name in ("base_points", "base_normals", "target_cam")))
+    return PlaneTerms.joined(found)
 
 
 def visible_contour(model: PartsSilhouette, T_cam_parts: np.ndarray, mv: MaskView,
