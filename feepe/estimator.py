@@ -459,7 +459,8 @@ class Estimator:
         """The frame segmented again at the refined calibration T_new, and the colours learned from it."""
         t0, before = time.perf_counter(), found.segmentation
         seen = segment(self.parts.coarse, T_new, found.parts, rgb, depth, K, self.colour, BAND_MIN_PX,
-                       self._depth_sigma, robot_mask=before.robot_mask, ee_mask=before.ee_mask, cover=before.cover)
+                       self._depth_sigma, robot_mask=before.robot_mask, ee_mask=before.ee_mask, cover=before.cover,
+                       sensor=before.sensor_depth)
         self.colour.learn(rgb, seen)
         self._depth_sigma = depth_sigma(seen)
         found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
@@ -603,7 +604,7 @@ class Estimator:
             if self.parts.motion_px(placed(seen.T_cam_base, entry.found.parts), placed(T, entry.found.parts), K) > 1.0:
                 again = segment(self.parts.coarse, T, entry.found.parts, seen.rgb, seen.depth, K, self.colour,
                                 BAND_MIN_PX, self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask,
-                                cover=seen.cover)
+                                cover=seen.cover, sensor=seen.sensor_depth)
                 entry.found.segmentation, entry.found.silhouette = again, mask_view(again.robot, K, seen.depth)
                 if entry.found.surface is not None:
                     entry.found.cloud = _robot_cloud(again, K, self.opts.depth_window_px)

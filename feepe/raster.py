@@ -125,9 +125,11 @@ def _pixel_box(t, h, w):
 
 
 @numba.njit(cache=True, nogil=True)
-def _zbuffer(tri, tz, out):
-    """Image triangles with their corners' depths into the depth image `out`, nearest kept (0: empty)."""
+def _zbuffer(tri, tz, out, ids, label):
+    """Image triangles with their corners' depths into the depth image `out`, nearest kept (0: empty), and
+    `label` into `ids` wherever they are drawn nearest (`ids` of no rows: none kept)."""
     h, w = out.shape
+    labelled = ids.shape[0] > 0
     for i in range(tri.shape[0]):
         u0, u1, v0, v1 = _pixel_box(tri[i], h, w)
         for v in range(v0, v1 + 1):  # most triangles of a fine mesh hold no pixel centre
@@ -138,6 +140,8 @@ def _zbuffer(tri, tz, out):
                 d = (wa + wb + wc) / (wa / tz[i, 0] + wb / tz[i, 1] + wc / tz[i, 2])
                 if out[v, u] == 0.0 or d < out[v, u]:
                     out[v, u] = d
+                    if labelled:
+                        ids[v, u] = label
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
@@ -258,11 +262,15 @@ def triangles(vertices: np.ndarray, faces: np.ndarray, T_cam_model: np.ndarray,
     return _project(P, faces, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
 
 
+_NO_IDS = np.zeros((0, 0), np.int64)
+
+
 def draw_depth(out: np.ndarray, vertices: np.ndarray, faces: np.ndarray, T_cam_model: np.ndarray,
-               K: np.ndarray) -> np.ndarray:
+               K: np.ndarray, ids: np.ndarray | None = None, label: int = 0) -> np.ndarray:
     """Draws the mesh seen at `T_cam_model` into the depth image `out` (H, W) where it is nearer than
-    what `out` holds (0: nothing drawn yet); returns `out`."""
-    _zbuffer(*triangles(vertices, faces, T_cam_model, K), out)
+    what `out` holds (0: nothing drawn yet), and `label` into `ids` (H, W) int64 where it is drawn; returns
+    `out`. A pixel two meshes reach at the very same depth keeps the one drawn first."""
+    _zbuffer(*triangles(vertices, faces, T_cam_model, K), out, _NO_IDS if ids is None else ids, label)
     return out
 
 

@@ -39,8 +39,8 @@ def _frames(n: int = 8):
     for i in range(n):
         turn = make_T(Rotation.from_euler("z", 10 * i, degrees=True).as_matrix())
         T_base_parts = np.stack([turn, np.eye(4), turn, turn])
-        part_depths = parts.part_depths(np.einsum("ij,njk->nik", T_CAM_BASE, T_base_parts), K, SHAPE)
-        drawn = np.stack(part_depths) > 0
+        T_cam_parts = np.einsum("ij,njk->nik", T_CAM_BASE, T_base_parts)
+        drawn = np.stack([m.render_depth(T, K, SHAPE) for m, T in zip(parts.parts, T_cam_parts)]) > 0
         rgb = background.copy()
         shadow = np.zeros(SHAPE, bool)
         shadow[200:230, 20 + 12 * i:80 + 12 * i] = True

@@ -13,7 +13,8 @@ from feepe.icp import SurfaceModel
 from feepe.registration import (CONTRAST_RGB, PPF, SceneSearch, background_planes, depth_cloud, depth_fit, is_new,
                                 near_hypotheses, outline_contrast, parts, scene_points)
 from feepe.robot_starts import RobotSamples
-from feepe.segmentation import ColourModel, model_view, robot_logodds, segment, trust
+from feepe import segmentation
+from feepe.segmentation import ColourModel, edge_alpha_logodds, model_view, robot_logodds, segment, trust
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, iou
 from kernel.transforms import inv_T, make_T, rotation_angle
 from tests.test_feepe_robot_starts import _arm
@@ -36,8 +37,7 @@ def _scene(occluder: bool = False, seed: int = 0, K=K):
     depth = robot.copy()
     for thing in (floor, wall):
         raster.draw_depth(depth, thing.vertices, thing.faces, T_CAM_BASE, K)
-    part = np.argmin(np.where(np.stack(parts.part_depths(T_parts, K, SHAPE)) > 0,
-                              np.stack(parts.part_depths(T_parts, K, SHAPE)), np.inf), 0)
+    part = parts.render_parts(T_parts, K, SHAPE)[1]
     visible = (robot > 0) & (robot <= depth)
     rgb = np.empty(SHAPE + (3,), np.uint8)
     rgb[:] = (40, 60, 160) + rng.integers(-20, 20, SHAPE + (3,))  # a blue, noisy background
@@ -354,7 +354,7 @@ def test_an_outline_pixel_is_robot_where_the_robot_covers_most_of_it_not_where_t
     rgb[:, 40] = 40 + 0.3 * 160
     drawn = np.zeros((40, 60))
     drawn[:, 20:41] = 1.0  # the model: columns 20-40, the truth at cover 0.5: 19-39
-    view = model_view([drawn])
+    view = model_view(drawn, np.where(drawn > 0, 0, -1))
     colour = ColourModel()
     colour.update(rgb, rgb[..., 0] == 200, rgb[..., 0] == 40)
     by_prior = robot_logodds(rgb, None, view, colour, 2.0, 0.01, False) > 0
@@ -638,3 +638,34 @@ def test_depth_pulling_the_pose_off_the_masks_yields_to_them_until_the_estimator
     assert off["own, standing"] > 0.01
     for case in ("given", "own, first"):
         assert fit[case] < fit["own, standing"] and off[case] < off["own, standing"], case
+
+
+def test_the_cover_read_at_the_outline_alone_equals_box_filters_over_the_whole_image():
+    """`edge_alpha_logodds` sums each read pixel's window itself; the same as OpenCV's box filters over the image
+    (its reflected border included: the robot touches the image's edge), bit for bit."""
+    rng = np.random.default_rng(3)
+    rgb = rng.integers(0, 256, (40, 50, 3)).astype(np.uint8)
+    rgb[:, :20] //= 4  # a dark background beside a bright robot, so that covers are read
+    yy, xx = np.mgrid[:40, :50]
+    drawn = ((xx >= 18) & (yy >= 5)).astype(float)  # the robot reaches the image's right and bottom edges
+    view = model_view(drawn, np.where(drawn > 0, 0, -1))
+    logodds = (np.clip(view.inside, -6, 6) + rng.normal(0, 1.5, drawn.shape)).astype(np.float32)
+    silent = rng.random(drawn.shape) < 0.8
+    c, size = rgb.astype(np.float32), (segmentation.EDGE_ALPHA_WINDOW,) * 2
+
+    def local_mean(on):
+        n = cv2.boxFilter(on.astype(np.float32), -1, size, normalize=False)
+        return cv2.boxFilter(c * on[..., None], -1, size, normalize=False) / np.maximum(n, 1.0)[..., None], n
+
+    confident, edge = segmentation.CONFIDENT_LOGODDS, segmentation.EDGE_PX
+    F, n_f = local_mean((logodds > confident) & (view.inside >= edge))
+    B, n_b = local_mean((logodds < -confident) & (view.inside <= -edge))
+    d = F - B
+    contrast = np.sqrt(np.sum(d * d, -1))
+    cover = np.sum((c - B) * d, -1) / np.maximum(contrast * contrast, 1e-6)
+    read = (silent & (np.abs(view.inside) <= segmentation.EDGE_ALPHA_PX) & (n_f > 0) & (n_b > 0)
+            & (contrast >= segmentation.EDGE_ALPHA_CONTRAST))
+    expected = np.where(read, segmentation.EDGE_ALPHA_LOGODDS * (np.clip(cover, 0.0, 1.0) - 0.5), 0.0)
+    found = edge_alpha_logodds(rgb, view, logodds, silent)
+    assert np.count_nonzero(expected) > 50 and read[:, -5:].any() and read[-5:].any()
+    assert np.array_equal(found, expected.astype(np.float32))

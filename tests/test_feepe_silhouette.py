@@ -258,6 +258,23 @@ def test_robot_parts_fit_the_outline_of_their_union():
     assert mean_iou(PartsSilhouette([ee]), np.eye(4), [(T_parts[:1], view)]) < 0.7
 
 
+def test_render_parts_gives_each_pixel_the_nearest_part_as_drawing_each_alone():
+    """The segmentation's one z-buffer: each pixel's depth and part are those of the nearest part's own render,
+    the first part where two reach the same depth (a box drawn twice at one place), -1 off every part."""
+    ee, link = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05))), SilhouetteModel(trimesh.creation.box((0.15, 0.03, 0.03)))
+    T = _box_pose()
+    T_link = T.copy()
+    T_link[:3, 3] += [0.06, 0.01, 0.03]
+    model, T_parts = PartsSilhouette([link, ee, link]), np.stack([T_link, T, T_link])
+    depth, part = model.render_parts(T_parts, K, (120, 160))
+    alone = np.stack([m.render_depth(Tp, K, (120, 160)) for m, Tp in zip(model.parts, T_parts)])
+    drawn = (alone > 0).any(0)
+    nearest = np.argmin(np.where(alone > 0, alone, np.inf), 0)
+    assert (part == np.where(drawn, nearest, -1)).all()
+    assert (depth == np.where(drawn, np.min(np.where(alone > 0, alone, np.inf), 0), 0.0)).all()
+    assert {0, 1} <= set(np.unique(part)) and 2 not in part  # the link drawn again loses its ties
+
+
 def test_iou_bound_is_never_below_the_rendered_iou():
     """The screening of starts skips a render where the bound is under the bar: it must hold for every pose,
     one part or two, the model seen whole or partly off the image, and reach 1 where the pose is right."""
