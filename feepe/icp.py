@@ -18,7 +18,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from feepe.optimize import jacobian_row, robust_sigma
+from feepe.optimize import Term, add_row, cost_of_squares, jacobian_row, robust_sigma, store_sums, sums_of
 from kernel.camera import backproject
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
@@ -87,9 +87,12 @@ class PlaneTerms:
     def of_pairs(cls, T_base_model: np.ndarray, model: SurfaceModel, nearest: np.ndarray,
                  target_cam: np.ndarray) -> "PlaneTerms":
         """The observed points `target_cam` with the model points `nearest` (indices) they pair with, the model
-        placed at T_base_model."""
-        return cls(transform_points(T_base_model, model.points[nearest]),
-                   model.normals[nearest] @ T_base_model[:3, :3].T, target_cam)
+        placed at T_base_model: as they are where that is the identity (the robot's surface, placed in the base
+        frame by each frame's joint states; a key frame's 12000 pairs are built again at each of its refinements)."""
+        points, normals = np.take(model.points, nearest, axis=0), np.take(model.normals, nearest, axis=0)
+        if np.array_equal(T_base_model, np.eye(4)):
+            return cls(points, normals, target_cam)
+        return cls(transform_points(T_base_model, points), normals @ T_base_model[:3, :3].T, target_cam)
 
     @classmethod
     def joined(cls, parts: list["PlaneTerms"]) -> "PlaneTerms":
@@ -157,13 +160,16 @@ def associate_again(T_cam_base: np.ndarray, frame: tuple[np.ndarray, np.ndarray]
     placed, redo, near = np.empty((n, 3)), np.empty(n, np.bool_), np.empty(n, np.bool_)
     _still_paired(np.ascontiguousarray(inv_T(T_cam_base @ T_base_model)), np.ascontiguousarray(cloud, dtype=float),
                   kept.placed, kept.first, kept.beyond, kept.nearest, model.points, gate_m, placed, redo, near)
-    if redo.any():
-        dist, idx = model.tree.query(placed[redo], k=2, distance_upper_bound=reach)
+    again = np.flatnonzero(redo)
+    if len(again):
+        moved = np.take(placed, again, axis=0)
+        dist, idx = model.tree.query(moved, k=2, distance_upper_bound=reach)
         kept = Pairing(model, kept.placed.copy(), kept.nearest.copy(), kept.first.copy(), kept.beyond.copy())
-        kept.placed[redo], kept.nearest[redo], kept.first[redo] = placed[redo], idx[:, 0], dist[:, 0]
-        kept.beyond[redo] = np.minimum(dist[:, 1], reach)  # the reach where none lies within it
-        near[redo] = dist[:, 0] < gate_m
-    return PlaneTerms.of_pairs(T_base_model, model, kept.nearest[near], cloud[near]), kept
+        kept.placed[again], kept.nearest[again], kept.first[again] = moved, idx[:, 0], dist[:, 0]
+        kept.beyond[again] = np.minimum(dist[:, 1], reach)  # the reach where none lies within it
+        near[again] = dist[:, 0] < gate_m
+    paired = np.flatnonzero(near)
+    return PlaneTerms.of_pairs(T_base_model, model, kept.nearest[paired], np.take(cloud, paired, axis=0)), kept
 
 
 @numba.njit(cache=True, nogil=True)
@@ -190,7 +196,7 @@ def _still_paired(A, cloud, ref, first, beyond, nearest, points, gate, placed, r
             near[i] = d < gate
 
 
-class PlaneTerm:
+class PlaneTerm(Term):
     """Point-to-plane residuals, each distance over its own sigma (m); a residual block for `optimize`.
     The normal is held fixed within a step, as usual for point-to-plane."""
 
@@ -198,29 +204,66 @@ class PlaneTerm:
         self.planes = planes
         self.inv_sigma = np.broadcast_to(1.0 / np.asarray(sigma_m, dtype=float), len(planes.target_cam)).copy()
 
+    def _arrays(self, T_cam_base: np.ndarray) -> tuple:
+        pl = self.planes
+        return tuple(np.ascontiguousarray(a, dtype=float) for a in (pl.base_points, pl.base_normals, pl.target_cam,
+                                                                   self.inv_sigma, T_cam_base))
+
     def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        pl, n = self.planes, len(self.inv_sigma)
+        n = len(self.inv_sigma)
         e, J = np.empty((n, 1)), np.empty((n if jacobian else 0, 1, 6))
-        _plane_rows(*(np.ascontiguousarray(a, dtype=float) for a in (pl.base_points, pl.base_normals, pl.target_cam,
-                                                                     self.inv_sigma, T_cam_base)), e, J)
+        _plane_rows(*self._arrays(T_cam_base), e, J)
         return e, (J if jacobian else None)
+
+    def normal_equations(self, T_cam_base: np.ndarray, H: np.ndarray, g: np.ndarray) -> float:
+        squares = np.empty(len(self.inv_sigma))
+        _plane_pass(*self._arrays(T_cam_base), H, g, squares, True)
+        return cost_of_squares(squares)
+
+    def cost(self, T_cam_base: np.ndarray) -> float:
+        squares = np.empty(len(self.inv_sigma))
+        _plane_pass(*self._arrays(T_cam_base), np.zeros((6, 6)), np.zeros(6), squares, False)
+        return cost_of_squares(squares)
+
+    def __len__(self) -> int:
+        return len(self.inv_sigma)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _plane_row(points, normals, target, inv_sigma, T, i):
+    """Row i of PlaneTerm: n . (target - R p - t) over sigma, with the normal turned by R and held fixed; the
+    rotated point and the residual's gradient in the camera point, -n / sigma (optimize.jacobian_row's q and g)."""
+    qx = T[0, 0] * points[i, 0] + T[0, 1] * points[i, 1] + T[0, 2] * points[i, 2]
+    qy = T[1, 0] * points[i, 0] + T[1, 1] * points[i, 1] + T[1, 2] * points[i, 2]
+    qz = T[2, 0] * points[i, 0] + T[2, 1] * points[i, 1] + T[2, 2] * points[i, 2]
+    nx = T[0, 0] * normals[i, 0] + T[0, 1] * normals[i, 1] + T[0, 2] * normals[i, 2]
+    ny = T[1, 0] * normals[i, 0] + T[1, 1] * normals[i, 1] + T[1, 2] * normals[i, 2]
+    nz = T[2, 0] * normals[i, 0] + T[2, 1] * normals[i, 1] + T[2, 2] * normals[i, 2]
+    e = (nx * (target[i, 0] - qx - T[0, 3]) + ny * (target[i, 1] - qy - T[1, 3])
+         + nz * (target[i, 2] - qz - T[2, 3])) * inv_sigma[i]
+    return e, qx, qy, qz, -nx * inv_sigma[i], -ny * inv_sigma[i], -nz * inv_sigma[i]
 
 
 @numba.njit(cache=True, nogil=True)
 def _plane_rows(points, normals, target, inv_sigma, T, e, J):
-    """PlaneTerm's rows in one pass: n . (target - R p - t) over sigma, with the normal turned by R and held
-    fixed and, when J has rows, its Jacobian (optimize.jacobian_row with g = -n / sigma)."""
+    """PlaneTerm's rows in one pass and, when J has rows, their Jacobian (optimize.jacobian_row)."""
     for i in range(points.shape[0]):
-        qx = T[0, 0] * points[i, 0] + T[0, 1] * points[i, 1] + T[0, 2] * points[i, 2]
-        qy = T[1, 0] * points[i, 0] + T[1, 1] * points[i, 1] + T[1, 2] * points[i, 2]
-        qz = T[2, 0] * points[i, 0] + T[2, 1] * points[i, 1] + T[2, 2] * points[i, 2]
-        nx = T[0, 0] * normals[i, 0] + T[0, 1] * normals[i, 1] + T[0, 2] * normals[i, 2]
-        ny = T[1, 0] * normals[i, 0] + T[1, 1] * normals[i, 1] + T[1, 2] * normals[i, 2]
-        nz = T[2, 0] * normals[i, 0] + T[2, 1] * normals[i, 1] + T[2, 2] * normals[i, 2]
-        e[i, 0] = (nx * (target[i, 0] - qx - T[0, 3]) + ny * (target[i, 1] - qy - T[1, 3])
-                   + nz * (target[i, 2] - qz - T[2, 3])) * inv_sigma[i]
+        e[i, 0], qx, qy, qz, gx, gy, gz = _plane_row(points, normals, target, inv_sigma, T, i)
         if J.shape[0]:
-            jacobian_row(J, i, qx, qy, qz, -nx * inv_sigma[i], -ny * inv_sigma[i], -nz * inv_sigma[i])
+            jacobian_row(J, i, qx, qy, qz, gx, gy, gz)
+
+
+@numba.njit(cache=True, nogil=True)
+def _plane_pass(points, normals, target, inv_sigma, T, H, g, squares, linearise):
+    """PlaneTerm's squared rows into `squares` and, when `linearise`, its rows added to the normal equations
+    (optimize.add_row)."""
+    s = sums_of(H, g)
+    for i in range(points.shape[0]):
+        e, qx, qy, qz, gx, gy, gz = _plane_row(points, normals, target, inv_sigma, T, i)
+        squares[i] = e ** 2
+        if linearise:
+            s = add_row(s, e, qx, qy, qz, gx, gy, gz)
+    store_sums(s, H, g)
 
 
 def sensor_plane_term(planes: PlaneTerms, T_cam_base: np.ndarray, sigma_0: float, k_z2: float,

@@ -10,7 +10,7 @@ pixel error like a `sigma_m` depth error and the Cauchy loss has unit scale.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Sequence
 
 import cv2
 import numba
@@ -85,11 +85,65 @@ def projection_jacobian(P: np.ndarray, K: np.ndarray) -> np.ndarray:
     return dpi
 
 
-class Term(Protocol):
-    """An extra residual block over the camera-to-base pose, already divided by its scale."""
+@numba.njit(cache=True, nogil=True, inline="always")
+def add_row(s, e, qx, qy, qz, gx, gy, gz):
+    """The sums `s` (`sums_of`) with one scalar residual e added as `_add_normal_equations` adds it, its Jacobian
+    row [Q x g, g] (`jacobian_row`) formed in registers, not stored. The sums stay in registers too: a pass over
+    a key frame's 12000 depth rows kept them in H and g three times slower."""
+    j0, j1, j2, j3, j4, j5 = qy * gz - qz * gy, qz * gx - qx * gz, qx * gy - qy * gx, gx, gy, gz
+    w = 1.0 / (1.0 + e ** 2)
+    w0, w1, w2, w3, w4, w5 = w * j0, w * j1, w * j2, w * j3, w * j4, w * j5
+    return (s[0] + w0 * j0, s[1] + w0 * j1, s[2] + w0 * j2, s[3] + w0 * j3, s[4] + w0 * j4, s[5] + w0 * j5,
+            s[6] + w1 * j1, s[7] + w1 * j2, s[8] + w1 * j3, s[9] + w1 * j4, s[10] + w1 * j5,
+            s[11] + w2 * j2, s[12] + w2 * j3, s[13] + w2 * j4, s[14] + w2 * j5,
+            s[15] + w3 * j3, s[16] + w3 * j4, s[17] + w3 * j5,
+            s[18] + w4 * j4, s[19] + w4 * j5,
+            s[20] + w5 * j5,
+            s[21] + w0 * e, s[22] + w1 * e, s[23] + w2 * e, s[24] + w3 * e, s[25] + w4 * e, s[26] + w5 * e)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def sums_of(H, g):
+    """H's upper triangle (row by row) and g as the 27 sums `add_row` carries."""
+    return (H[0, 0], H[0, 1], H[0, 2], H[0, 3], H[0, 4], H[0, 5], H[1, 1], H[1, 2], H[1, 3], H[1, 4], H[1, 5],
+            H[2, 2], H[2, 3], H[2, 4], H[2, 5], H[3, 3], H[3, 4], H[3, 5], H[4, 4], H[4, 5], H[5, 5],
+            g[0], g[1], g[2], g[3], g[4], g[5])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def store_sums(s, H, g):
+    """The sums back into H's upper triangle and g."""
+    k = 0
+    for p in range(6):
+        for q in range(p, 6):
+            H[p, q] = s[k]
+            k += 1
+    for p in range(6):
+        g[p] = s[21 + p]
+
+
+class Term:
+    """An extra residual block over the camera-to-base pose, already divided by its scale. `residuals` defines
+    it; the optimiser reads it through `normal_equations` and `cost`, which a term of many rows computes in one
+    compiled pass (a key frame's 12000 depth rows' Jacobian alone is 0.6 MB, written and read again each step)."""
 
     def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
         """(N, k) residuals and, when asked, their (N, k, 6) Jacobian in the left perturbation of `_step`."""
+        raise NotImplementedError
+
+    def normal_equations(self, T_cam_base: np.ndarray, H: np.ndarray, g: np.ndarray) -> float:
+        """Adds J^T W J (its upper triangle) and J^T W e to H and g, W the Cauchy weights 1 / (1 + ||e_i||^2);
+        returns the cost sum log(1 + ||e_i||^2)."""
+        e, J = self.residuals(T_cam_base, True)
+        e = np.ascontiguousarray(e, dtype=float)
+        _add_normal_equations(e, np.ascontiguousarray(J, dtype=float), H, g)
+        return _cost([e])
+
+    def cost(self, T_cam_base: np.ndarray) -> float:
+        return _cost([self.residuals(T_cam_base, False)[0]])
+
+    def __len__(self) -> int:
+        return len(self.residuals(np.eye(4), False)[0])
 
 
 class _Problem:
@@ -100,20 +154,30 @@ class _Problem:
         self.obs, self.sigma_px, self.k3, self.terms = obs, sigma_px, w3d / sigma_m, terms
         self.depth = np.isfinite(obs.observed_cam).all(1) if w3d > 0 else np.zeros(len(obs.uv), bool)
 
-    def errors(self, T: np.ndarray, jacobian: bool = False) -> tuple[list, list]:
-        extra = [term.residuals(T, jacobian) for term in self.terms]
-        if len(self.obs.uv) == 0:  # the terms alone (the silhouette refinement): no empty match blocks to build
-            return [e for e, _ in extra], [J for _, J in extra] if jacobian else []
+    def _matches(self, T: np.ndarray, jacobian: bool) -> tuple[list, list]:
+        """The matches' blocks (2D, then 3D) and, when asked, their Jacobians."""
+        if len(self.obs.uv) == 0:
+            return [], []
         Q = self.obs.base_points @ T[:3, :3].T
         P = Q + T[:3, 3]
         e2 = project(P, self.obs.K, min_z=MIN_Z_M) - self.obs.uv
         blocks = [e2 / self.sigma_px, (P[self.depth] - self.obs.observed_cam[self.depth]) * self.k3]
-        blocks += [e for e, _ in extra]
         if not jacobian:
             return blocks, []
         dP = point_jacobian(Q)
-        jacobians = [(projection_jacobian(P, self.obs.K) @ dP) / self.sigma_px, dP[self.depth] * self.k3]
-        return blocks, jacobians + [J for _, J in extra]
+        return blocks, [(projection_jacobian(P, self.obs.K) @ dP) / self.sigma_px, dP[self.depth] * self.k3]
+
+    def normal_equations(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """H (symmetric), g and the cost at T over every block."""
+        H, g = np.zeros((6, 6)), np.zeros(6)
+        blocks, jacobians = self._matches(T, True)
+        for e, J in zip(blocks, jacobians):
+            _add_normal_equations(np.ascontiguousarray(e, dtype=float), np.ascontiguousarray(J, dtype=float), H, g)
+        cost = _cost(blocks) + sum(term.normal_equations(T, H, g) for term in self.terms)
+        return np.triu(H) + np.triu(H, 1).T, g, cost
+
+    def cost(self, T: np.ndarray) -> float:
+        return _cost(self._matches(T, False)[0]) + sum(term.cost(T) for term in self.terms)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -141,6 +205,12 @@ def robust_sigma(residuals: np.ndarray) -> float:
 
 def _cost(blocks: list) -> float:
     return float(sum(np.log1p(np.sum(e**2, 1)).sum() for e in blocks))
+
+
+def cost_of_squares(squares: np.ndarray) -> float:
+    """`_cost` of one block of scalar rows from their squares, as a compiled pass writes them: NumPy's vectorised
+    log1p takes a fifth of a compiled loop's, and the sum is the very same."""
+    return float(np.log1p(squares).sum())
 
 
 def _step(T: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -181,18 +251,13 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
     `terms` adds residual blocks beside the matches' (depth alignment's `feepe.icp.PlaneTerm`, the
     silhouette's contour term).
     """
-    if len(obs.uv) == 0 and all(len(t.residuals(T_init, False)[0]) == 0 for t in terms):
+    if len(obs.uv) == 0 and all(len(t) == 0 for t in terms):
         return T_init, np.zeros(0)
     w3d = float(np.sqrt(opts.lam)) if opts.lam > 0 else 0.0
     problem = _Problem(obs, opts.sigma_px, opts.sigma_m, w3d, terms)
     T, damping = T_init.copy(), DAMPING_START
-    blocks, jacobians = problem.errors(T, jacobian=True)
-    cost = _cost(blocks)
+    H, g, cost = problem.normal_equations(T)
     for _ in range(opts.max_iterations):
-        H, g = np.zeros((6, 6)), np.zeros(6)
-        for e, J in zip(blocks, jacobians):
-            _add_normal_equations(np.ascontiguousarray(e, dtype=float), np.ascontiguousarray(J, dtype=float), H, g)
-        H = np.triu(H) + np.triu(H, 1).T
         if opts.min_decrease > 0:
             x = np.linalg.lstsq(H, -g, rcond=None)[0]  # of least norm where no residual moves a direction
             if -(g @ x + 0.5 * x @ H @ x) < opts.min_decrease * cost:
@@ -200,14 +265,14 @@ def optimize(T_init: np.ndarray, obs: Observations, opts: OptimizeOptions,
         while True:
             x = np.linalg.solve(H + damping * np.diag(np.diag(H) + DIAG_FLOOR), -g)
             T_new = _step(T, x)
-            cost_new = _cost(problem.errors(T_new)[0])
+            cost_new = problem.cost(T_new)
             if cost_new <= cost or damping > DAMPING_MAX or _size(x) < opts.min_step:
                 break
             damping *= DAMPING_FACTOR
         if cost_new > cost:
             break
-        T, cost, damping = T_new, cost_new, max(damping / DAMPING_FACTOR, DAMPING_MIN)
-        blocks, jacobians = problem.errors(T, jacobian=True)
+        T, damping = T_new, max(damping / DAMPING_FACTOR, DAMPING_MIN)
+        H, g, cost = problem.normal_equations(T)
         if _size(x) < CONVERGED:
             break
     return T, reprojection_px(T, obs)

@@ -23,7 +23,7 @@ import trimesh
 from feepe import raster
 from feepe.depth import depth_at
 from feepe.icp import PlaneTerms, SurfaceModel, associate_again
-from feepe.optimize import jacobian_row, robust_sigma
+from feepe.optimize import Term, add_row, cost_of_squares, jacobian_row, robust_sigma, store_sums, sums_of
 from kernel.camera import project
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
@@ -330,7 +330,7 @@ def placed(T_cam_base: np.ndarray, T_base_parts: np.ndarray) -> np.ndarray:
     return np.einsum("ij,njk->nik", T_cam_base, T_base_parts)
 
 
-class SilhouetteTerm:
+class SilhouetteTerm(Term):
     """Residuals: each contour point's signed distance to its frame's mask boundary, over its frame's
     `sigma_px` (one scale, or one per frame).
 
@@ -355,37 +355,71 @@ class SilhouetteTerm:
             _term_rows(self.base_points, self.bounds, self._K, self._fields, T, self.sigma_px, e, J)
         return e, (J if jacobian else None)
 
+    def normal_equations(self, T_cam_base: np.ndarray, H: np.ndarray, g: np.ndarray) -> float:
+        return self._pass(T_cam_base, H, g, True)
+
+    def cost(self, T_cam_base: np.ndarray) -> float:
+        return self._pass(T_cam_base, np.zeros((6, 6)), np.zeros(6), False)
+
+    def _pass(self, T_cam_base: np.ndarray, H: np.ndarray, g: np.ndarray, linearise: bool) -> float:
+        if self._fields is None:
+            return 0.0
+        T, squares = np.ascontiguousarray(T_cam_base, dtype=float), np.empty(len(self.view))
+        _term_pass(self.base_points, self.bounds, self._K, self._fields, T, self.sigma_px, H, g, squares, linearise)
+        return cost_of_squares(squares)
+
+    def __len__(self) -> int:
+        return len(self.view)
+
 
 @numba.njit(cache=True, nogil=True)
 def _term_rows(points, bounds, Ks, fields, T, sigmas, e, J):
-    """SilhouetteTerm.residuals over its frames in one call (frame i's points are rows bounds[i]:bounds[i+1])."""
-    for i in range(len(fields)):
-        a, b = bounds[i], bounds[i + 1]
-        _contour_rows(points[a:b], Ks[i], T, fields[i], sigmas[i], e[a:b], J[a:b])
+    """SilhouetteTerm.residuals over its frames in one call (frame i's points are rows bounds[i]:bounds[i+1])
+    and, when J has rows, their Jacobian (optimize.jacobian_row)."""
+    for f in range(len(fields)):
+        field, K = fields[f], Ks[f]  # once per frame: a typed list's item costs more than a row
+        for i in range(bounds[f], bounds[f + 1]):
+            e[i, 0], qx, qy, qz, gx, gy, gz = _contour_row(points, K, T, field, sigmas[f], i, J.shape[0] > 0)
+            if J.shape[0]:
+                jacobian_row(J, i, qx, qy, qz, gx, gy, gz)
 
 
 @numba.njit(cache=True, nogil=True)
-def _contour_rows(points, K, T, field, sigma, e, J):
-    """SilhouetteTerm's rows for one frame's points: the signed distance at the projection over sigma and,
-    when J has rows, its Jacobian (optimize.jacobian_row, g the field's gradient through the projection)."""
+def _term_pass(points, bounds, Ks, fields, T, sigmas, H, g, squares, linearise):
+    """SilhouetteTerm's squared rows over its frames into `squares` and, when `linearise`, its rows added to the
+    normal equations (optimize.add_row)."""
+    s = sums_of(H, g)
+    for f in range(len(fields)):
+        field, K = fields[f], Ks[f]
+        for i in range(bounds[f], bounds[f + 1]):
+            e, qx, qy, qz, gx, gy, gz = _contour_row(points, K, T, field, sigmas[f], i, linearise)
+            squares[i] = e ** 2
+            if linearise:
+                s = add_row(s, e, qx, qy, qz, gx, gy, gz)
+    store_sums(s, H, g)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _contour_row(points, K, T, field, sigma, i, gradient):
+    """Row i of SilhouetteTerm, a point of the frame of intrinsics K and mask field `field`: the signed distance
+    at its projection over sigma; the rotated point and, with `gradient`, the field's image gradient through the
+    projection's derivative (optimize.jacobian_row's q and g; else zeros)."""
     h, w = field.shape[0], field.shape[1]
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    for i in range(points.shape[0]):
-        qx = T[0, 0] * points[i, 0] + T[0, 1] * points[i, 1] + T[0, 2] * points[i, 2]
-        qy = T[1, 0] * points[i, 0] + T[1, 1] * points[i, 1] + T[1, 2] * points[i, 2]
-        qz = T[2, 0] * points[i, 0] + T[2, 1] * points[i, 1] + T[2, 2] * points[i, 2]
-        x, y, z = qx + T[0, 3], qy + T[1, 3], max(qz + T[2, 3], 1e-6)
-        u, v = raster.to_pixel(fx, fy, cx, cy, x, y, z)
-        u, v = min(max(u, 0.0), w - 1.001), min(max(v, 0.0), h - 1.001)
-        u0, v0 = int(u), int(v)
-        a, b = u - u0, v - v0
-        e[i, 0] = _bilinear(field, u0, v0, a, b, 0) / sigma
-        if J.shape[0]:
-            du, dv = _bilinear(field, u0, v0, a, b, 1), _bilinear(field, u0, v0, a, b, 2)
-            gx = du * fx / z / sigma  # the field's image gradient through the projection's derivative
-            gy = dv * fy / z / sigma
-            gz = -(du * fx * x + dv * fy * y) / (z * z) / sigma
-            jacobian_row(J, i, qx, qy, qz, gx, gy, gz)
+    qx = T[0, 0] * points[i, 0] + T[0, 1] * points[i, 1] + T[0, 2] * points[i, 2]
+    qy = T[1, 0] * points[i, 0] + T[1, 1] * points[i, 1] + T[1, 2] * points[i, 2]
+    qz = T[2, 0] * points[i, 0] + T[2, 1] * points[i, 1] + T[2, 2] * points[i, 2]
+    x, y, z = qx + T[0, 3], qy + T[1, 3], max(qz + T[2, 3], 1e-6)
+    u, v = raster.to_pixel(fx, fy, cx, cy, x, y, z)
+    u, v = min(max(u, 0.0), w - 1.001), min(max(v, 0.0), h - 1.001)
+    u0, v0 = int(u), int(v)
+    a, b = u - u0, v - v0
+    e = _bilinear(field, u0, v0, a, b, 0) / sigma
+    if not gradient:
+        return e, qx, qy, qz, 0.0, 0.0, 0.0
+    du, dv = _bilinear(field, u0, v0, a, b, 1), _bilinear(field, u0, v0, a, b, 2)
+    return (e, qx, qy, qz, du * fx / z / sigma, dv * fy / z / sigma,
+            -(du * fx * x + dv * fy * y) / (z * z) / sigma)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

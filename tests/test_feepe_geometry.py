@@ -13,7 +13,8 @@ from feepe.icp import (WINDOW_BIAS_MAX_M, PlaneTerm, PlaneTerms, SurfaceModel, a
                        depth_agreement, depth_distances, robust_scale, window_bias, without_window_bias)
 from feepe.matching import best_buddies
 from feepe.memory import MemoryEntry, MemoryPool
-from feepe.optimize import OptimizeOptions, _step, optimize, robust_sigma, stack
+from feepe.optimize import OptimizeOptions, Term, _step, optimize, robust_sigma, stack
+from feepe.silhouette import SilhouetteModel, SilhouetteTerm, mask_view
 from feepe.pnp import solve_pnp
 from feepe.symmetry import consensus
 from kernel.transforms import inv_T, make_T, rotation_angle, transform_points
@@ -138,6 +139,29 @@ def test_plane_term_rows_match_numpy_and_finite_differences():
         x[k] = 1e-6
         numeric = (fixed_normal(_step(T, x)) - fixed_normal(_step(T, -x))) / 2e-6
         assert np.allclose(numeric, J[:, 0, k], rtol=1e-5, atol=1e-3)
+
+
+def test_compiled_passes_are_the_normal_equations_of_the_rows():
+    """PlaneTerm's and SilhouetteTerm's one-pass normal equations and costs (the Jacobian never stored) are those
+    that Term forms from their residuals and Jacobians, bit for bit."""
+    rng = np.random.default_rng(5)
+    planes = PlaneTerms(rng.normal(0, 0.05, (500, 3)), rng.normal(size=(500, 3)),
+                        rng.normal(0, 0.05, (500, 3)) + [0, 0, 1])
+    box = SilhouetteModel(trimesh.creation.box((0.06, 0.04, 0.05)))
+    T = make_T(Rotation.from_euler("xyz", [0.3, -0.2, 0.2]).as_matrix(), [0.01, -0.005, 0.5])
+    closer = K @ np.diag([1.1, 1.1, 1.0])
+    views = [mask_view(box.render(T, K, (240, 320)), K), mask_view(box.render(T, closer, (240, 320)), closer)]
+    P = box.contour(T, K, (240, 320))
+    assert len(P) > 100
+    contours = SilhouetteTerm(np.concatenate([P, P]), np.repeat([1, 0], len(P)), views, np.array([1.5, 0.7]))
+    moved = _step(T, np.array([0.01, -0.02, 0.01, 0.002, -0.001, 0.003]))
+    for term in (PlaneTerm(planes, rng.uniform(0.001, 0.003, 500)), contours):
+        H, g, H_rows, g_rows = np.zeros((6, 6)), np.zeros(6), np.zeros((6, 6)), np.zeros(6)
+        cost = term.normal_equations(moved, H, g)
+        cost_rows = Term.normal_equations(term, moved, H_rows, g_rows)
+        assert np.array_equal(H, H_rows) and np.array_equal(g, g_rows) and np.abs(g).sum() > 0
+        assert cost == cost_rows == term.cost(moved)
+        assert len(term) == len(term.residuals(moved, False)[0])
 
 
 def test_pairs_kept_from_another_calibration_are_the_pairs_made_again():
@@ -273,7 +297,7 @@ def test_robust_sigma_is_the_scaled_median_absolute_residual():
     assert robust_scale(r / 100) == 0.25  # at least min_scale
 
 
-class _Misled:
+class _Misled(Term):
     """A residual whose Jacobian points the wrong way, as a sampled field's can at the optimum: every step
     the model promises raises the cost. Counts its evaluations."""
 
@@ -299,7 +323,7 @@ def test_optimisation_stops_raising_the_damping_once_steps_stop_mattering():
     assert runs[1e-6][1] < runs[0.0][1]  # 9 evaluations against 15
 
 
-class _Unobservable:
+class _Unobservable(Term):
     """Residuals at a silhouette term's scale (thousands of rows, large Jacobians) that turning about x and
     moving along x change alike: the pose's sixth direction (one turned against the other) moves none of them."""
 
