@@ -210,6 +210,17 @@ def load_models(path: Path, opts: FeepeOptions) -> tuple[SurfaceModel | None, Si
 
 
 @dataclass
+class _Fitted:
+    """The last refinement: the memory's size then, its calibration, the key frames it fitted and their mean mask
+    IoU there, measured only once a later frame asks (one that adds no key frame; before, every refinement measured
+    it on every key frame)."""
+    pool_size: int
+    T_cam_base: np.ndarray
+    frames: list
+    iou: float | None = None
+
+
+@dataclass
 class RobotView:
     """The whole robot in one frame, for `silhouette="robot"`: its visible mask (every link and the
     end-effector; a robot segmenter's output; None when no mask is given) and the arm links' poses from
@@ -292,7 +303,7 @@ class Estimator:
                                self.opts.silhouette_memory_m if self.opts.refine != "none" else np.inf)
         self.T_cam_base: np.ndarray | None = None
         self.frame = 0
-        self._fitted: tuple[int, float] | None = None  # pool size and mean key-frame IoU at the last refinement
+        self._fitted: _Fitted | None = None  # the last refinement
         self.centres = CentreTrack(self.silhouette.centre) if self.silhouette is not None else None
         self.colour = ColourModel()  # no mask given: the robot's and the background's colours, learned online
         self._hypotheses: list[list] = []  # no mask given: [T_cam_base, summed depth score] from the registrations
@@ -715,9 +726,12 @@ class Estimator:
 
         warm = None
         if self.T_cam_base is not None:
-            if self._fitted is not None and len(self.pool) < max(self._fitted[0] + 1,
-                                                                  self._fitted[0] * (1 + opts.silhouette_refit_growth)):
-                if fit(self.T_cam_base, current) >= self._fitted[1] - opts.silhouette_switch_iou:
+            last = self._fitted
+            if last is not None and len(self.pool) < max(last.pool_size + 1,
+                                                          last.pool_size * (1 + opts.silhouette_refit_growth)):
+                if last.iou is None:
+                    last.iou = fit(last.T_cam_base, last.frames)
+                if fit(self.T_cam_base, current) >= last.iou - opts.silhouette_switch_iou:
                     return self.T_cam_base  # the memory grew too little, and the current mask agrees as they did
             warm = self._descend(self.T_cam_base, frames, sigmas[-1:], clouds, models)
             # what another start must beat; an IoU exceeds neither 1 nor its bound, so few starts need a render
@@ -725,7 +739,7 @@ class Estimator:
             T_base_parts, mv = current[0]
             if bar >= 1.0 or all(iou_bound(self.parts, placed(T, T_base_parts), mv, IOU_STRIDE) <= bar
                                  or fit(T, current) <= bar for T in starts):
-                self._fitted = (len(self.pool), fit(warm, frames))
+                self._fitted = _Fitted(len(self.pool), warm, frames)
                 return warm
         scored = sorted(((fit(T, frames), i) for i, T in enumerate(starts)), reverse=True)
         descended = ([warm] if warm is not None else []) + [self._descend(starts[i], frames, sigmas, clouds, models)
@@ -739,7 +753,7 @@ class Estimator:
             scores = [iou * (a if np.isfinite(a) else 1.0)
                       for iou, a in zip(ious, (depth_agreement(d, scale) for d in distances))]
         best = int(np.argmax(scores))
-        self._fitted = (len(self.pool), ious[best])
+        self._fitted = _Fitted(len(self.pool), descended[best], frames, ious[best])
         return descended[best]
 
     def _descend(self, T: np.ndarray, frames: list, sigmas, clouds: list, models) -> np.ndarray:

@@ -124,15 +124,25 @@ def _pixel_box(t, h, w):
     return max(int(u0), 0), min(int(u1), w - 1), max(int(v0), 0), min(int(v1), h - 1)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def _zbuffer(tri, tz, out, ids, label):
     """Image triangles with their corners' depths into the depth image `out`, nearest kept (0: empty), and
-    `label` into `ids` wherever they are drawn nearest (`ids` of no rows: none kept)."""
+    `label` into `ids` wherever they are drawn nearest (`ids` of no rows: none kept); the image's upper and lower
+    halves on the two cores, each pixel drawn by one, in the triangles' order."""
+    h = out.shape[0]
+    for half in numba.prange(2):
+        _zbuffer_rows(tri, tz, out, ids, label, half * (h // 2), h if half else h // 2)
+
+
+@numba.njit(cache=True, nogil=True)
+def _zbuffer_rows(tri, tz, out, ids, label, row_from, row_to):
+    """`_zbuffer` for the image rows [row_from, row_to)."""
     h, w = out.shape
     labelled = ids.shape[0] > 0
     for i in range(tri.shape[0]):
         u0, u1, v0, v1 = _pixel_box(tri[i], h, w)
-        for v in range(v0, v1 + 1):  # most triangles of a fine mesh hold no pixel centre
+        # most triangles of a fine mesh hold no pixel centre
+        for v in range(max(v0, row_from), min(v1, row_to - 1) + 1):
             for u in range(u0, u1 + 1):
                 wa, wb, wc = _weights(tri[i], u, v)
                 if wa < 0.0 or wb < 0.0 or wc < 0.0:

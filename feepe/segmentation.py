@@ -243,8 +243,9 @@ def _edge_cover(rgb, inside, logodds, read, out):
             if not contrast >= np.float32(EDGE_ALPHA_CONTRAST):
                 continue
             c0, c1, c2 = np.float32(rgb[v, u, 0]), np.float32(rgb[v, u, 1]), np.float32(rgb[v, u, 2])
-            cover = ((c0 - B[0]) * d0 + (c1 - B[1]) * d1 + (c2 - B[2]) * d2) / max(contrast * contrast, np.float32(1e-6))
-            out[v, u] = np.float32(EDGE_ALPHA_LOGODDS) * (min(max(cover, np.float32(0.0)), np.float32(1.0)) - np.float32(0.5))
+            along = (c0 - B[0]) * d0 + (c1 - B[1]) * d1 + (c2 - B[2]) * d2
+            cover = min(max(along / max(contrast * contrast, np.float32(1e-6)), np.float32(0.0)), np.float32(1.0))
+            out[v, u] = np.float32(EDGE_ALPHA_LOGODDS) * (cover - np.float32(0.5))
 
 
 def trust(iou: float) -> float:
