@@ -631,7 +631,9 @@ class Estimator:
             return best.T_cam_ee @ inv_T(T_base_ee), float(best.n_inliers), 0
         views = self._with_key_frames(T_base_ee, found, opts.k_f if opts.variant in ("C", "D") else 0)
         frames = [(T, f.K, f.candidates) for T, f in views]
-        if not any(c for _, _, c in frames):
+        # no mask given and a calibration standing: the template path no longer runs (`_step_unmasked`), and its
+        # key frames' candidates are not solved again either; the refinement starts from the calibration
+        if not any(c for _, _, c in frames) or (prior is not None and self.T_cam_base is not None):
             if prior is None:
                 return None, 0.0, 0
             return self._refined(prior, T_base_ee, found, timings), 0.0, len(frames) - 1
