@@ -431,8 +431,7 @@ class Estimator:
                 # and the model's depth by less than their own scales): its colours learned, not drawn again (half
                 # of a later frame's segmentation; seeds 131, 157, 151, 137 ADD -0.03..0, after 15 frames the same
                 # or 0.03 mm better)
-                self.colour.learn(rgb, seen)
-                self._depth_sigma = depth_sigma(seen)
+                self._learn(rgb, seen)
             else:
                 seen = self._segment_again(T_new, rgb, depth, K, found, timings)
             if colourless and self.colour.fg is not None:  # the first segmentation knew no colours: its outline
@@ -482,13 +481,17 @@ class Estimator:
         seen = segment(self.parts.coarse, T_new, found.parts, rgb, depth, K, self.colour, BAND_MIN_PX,
                        self._depth_sigma, robot_mask=before.robot_mask, ee_mask=before.ee_mask, cover=before.cover,
                        sensor=before.sensor_depth)
-        self.colour.learn(rgb, seen)
-        self._depth_sigma = depth_sigma(seen)
+        self._learn(rgb, seen)
         found.segmentation, found.silhouette = seen, mask_view(seen.robot, K, depth)
         if found.surface is not None:
             found.cloud = _robot_cloud(seen, K, self.opts.depth_window_px)
         timings["segmentation"] += 1e3 * (time.perf_counter() - t0)
         return seen
+
+    def _learn(self, rgb: np.ndarray, seen: Segmentation) -> None:
+        """The colours and the depth's scale the next segmentation reads, from this one."""
+        self.colour.learn(rgb, seen)
+        self._depth_sigma = depth_sigma(seen)
 
     def _judge_hypotheses(self, model: SurfaceModel, T_base_parts: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
                           K: np.ndarray) -> None:
@@ -641,8 +644,9 @@ class Estimator:
             return best.T_cam_ee @ inv_T(T_base_ee), float(best.n_inliers), 0
         views = self._with_key_frames(T_base_ee, found, opts.k_f if opts.variant in ("C", "D") else 0)
         frames = [(T, f.K, f.candidates) for T, f in views]
-        # no mask given and a calibration standing: the template path no longer runs (`_step_unmasked`), and its
-        # key frames' candidates are not solved again either; the refinement starts from the calibration
+        # the estimator's own segmentation (no mask, or masks as a prior) and a calibration standing: the template
+        # path no longer runs (`_step_unmasked`), and its key frames' candidates are not solved again either; the
+        # refinement starts from the calibration
         if not any(c for _, _, c in frames) or (prior is not None and self.T_cam_base is not None):
             if prior is None:
                 return None, 0.0, 0
