@@ -437,9 +437,11 @@ class Estimator:
             if colourless and self.colour.fg is not None:  # the first segmentation knew no colours: its outline
                 # was the prior's and the depth's; refined again on the colours learned from it, until the robot
                 # moves less than a pixel, from that fit alone (the other starts lost to it on this frame already:
-                # seeds 131, 103, 151 and held-out 157 the same or better, the first frame's refinement 868 -> 653 ms)
+                # seeds 131, 103, 151 and held-out 157 the same or better, the first frame's refinement 868 -> 653 ms),
+                # at the finest scale only: that fit has descended the coarse ones (seed 131's first frames 1091 ->
+                # 1064 ms, its ADD the same to 0.02)
                 for _ in range(COLOUR_ROUNDS):
-                    T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings, others=False)
+                    T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings, others=False, fine=True)
                     seen = self._segment_again(T_new, rgb, depth, K, found, timings)
                     if self.parts.motion_px(placed(T, found.parts), placed(T_new, found.parts), K) < 1.0:
                         break
@@ -668,16 +670,16 @@ class Estimator:
         return T, score, len(frames) - 1
 
     def _refined(self, T: np.ndarray, T_base_ee: np.ndarray, found: FrameCandidates, timings: dict,
-                 others: bool = True) -> np.ndarray:
+                 others: bool = True, fine: bool = False) -> np.ndarray:
         """The silhouette refinement over the current frame and its own key frames, from T and (`others`) the other
-        starts."""
+        starts; `fine`: at the finest scale only."""
         opts = self.opts
         t0 = time.perf_counter()
         k = opts.silhouette_key_frames if opts.variant in ("C", "D") else 0  # its own key frames, not D's
         fitted = self._with_key_frames(T_base_ee, found, k)
         clouds, models = self._depth_frames(fitted) if opts.depth_in_refinement else ([], self.model)
         starts = self._starts(T, T_base_ee, found) if others else [T]
-        T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in fitted], clouds, models)
+        T = self._refine_silhouette(starts, [(f.parts, f.silhouette) for _, f in fitted], clouds, models, fine)
         timings["refinement"] = timings.get("refinement", 0.0) + 1e3 * (time.perf_counter() - t0)
         return T
 
@@ -727,7 +729,8 @@ class Estimator:
         pivot_base = transform_points(T_base_parts[0], self.silhouette.centre[None])[0]
         return robot_starts(model_base, observed_points(depth, robot_mask, K), pivot_base, pivot_cam)
 
-    def _refine_silhouette(self, starts: list[np.ndarray], frames: list, clouds: list, models) -> np.ndarray:
+    def _refine_silhouette(self, starts: list[np.ndarray], frames: list, clouds: list, models,
+                           fine: bool = False) -> np.ndarray:
         """Online: with no new key frame since the last refinement (or fewer than `silhouette_refit_growth`
         of the memory's size then) and a current mask that the last calibration explains as well as it
         explained the key frames, it stands. Else it is refined at the
@@ -736,6 +739,8 @@ class Estimator:
         with depth, the best IoU times the depth's agreement (`feepe.icp.depth_agreement`) at the noise scale
         measured at the best IoU's pose (so exact depth judges sharply, a stereo camera's loosely)."""
         opts, sigmas, current = self.opts, self.opts.silhouette_sigmas_px, frames[:1]
+        if fine:
+            sigmas = sigmas[-1:]
 
         def fit(T: np.ndarray, views: list) -> float:
             return mean_iou(self.parts, T, views, IOU_STRIDE)
@@ -758,21 +763,35 @@ class Estimator:
                 self._fitted = _Fitted(len(self.pool), warm, frames)
                 return warm
         scored = sorted(((fit(T, frames), i) for i, T in enumerate(starts)), reverse=True)
-        descended = ([warm] if warm is not None else []) + [self._descend(starts[i], frames, sigmas, clouds, models)
-                                                           for _, i in scored[:opts.silhouette_starts]]
-        ious = [fit(T, frames) for T in descended]
+        chosen = [starts[i] for _, i in scored[:opts.silhouette_starts]]
+        if self._own_masks and len(chosen) > 1 and len(sigmas) > 1:
+            # the estimator's own masks: every start descends the coarsest stage, the best of them (`_best`) the
+            # others, and only its descent is judged against depth (`_descend`): a first frame descended three starts
+            # to the finest scale (seed 131's first frames 1064 -> 935 ms; with the PPF's votes and the colour
+            # rounds' finest scale, seeds 131 and 137 ADD 93.14 and 85.16 against 93.20 and 85.15)
+            coarse = [self._descend(T, frames, sigmas[:1], clouds, models, judged=False) for T in chosen]
+            chosen, sigmas = [coarse[self._best(coarse, frames, clouds, models)[0]]], sigmas[1:]
+        descended = ([warm] if warm is not None else []) + [self._descend(T, frames, sigmas, clouds, models)
+                                                           for T in chosen]
+        best, ious = self._best(descended, frames, clouds, models)
+        self._fitted = _Fitted(len(self.pool), descended[best], frames, ious[best])
+        return descended[best]
+
+    def _best(self, descended: list[np.ndarray], frames: list, clouds: list, models) -> tuple[int, list[float]]:
+        """Which calibration explains the frames best, and each one's mean mask IoU: the best IoU or, with depth,
+        the best IoU times the depth's agreement, all at the best IoU's noise scale."""
+        opts = self.opts
+        ious = [mean_iou(self.parts, T, frames, IOU_STRIDE) for T in descended]
         scores = ious
-        if clouds:  # depth judges too: the IoU times the depth's agreement, all at the best IoU's noise scale
+        if clouds:
             distances = [depth_distances(T, clouds, models, opts.depth_sigma_m, opts.depth_sigma_z2)
                          for T in descended]
             scale = robust_scale(distances[int(np.argmax(ious))])
             scores = [iou * (a if np.isfinite(a) else 1.0)
                       for iou, a in zip(ious, (depth_agreement(d, scale) for d in distances))]
-        best = int(np.argmax(scores))
-        self._fitted = _Fitted(len(self.pool), descended[best], frames, ious[best])
-        return descended[best]
+        return int(np.argmax(scores)), ious
 
-    def _descend(self, T: np.ndarray, frames: list, sigmas, clouds: list, models) -> np.ndarray:
+    def _descend(self, T: np.ndarray, frames: list, sigmas, clouds: list, models, judged: bool = True) -> np.ndarray:
         """Gauss-Newton on the contour term (and depth), the contour re-extracted between solves (as ICP
         re-associates). Depth may move the pose only within the masks' own uncertainty: when the result's
         mean contour distance exceeds the masks-only pose's by more than `silhouette_depth_tolerance`
@@ -780,10 +799,10 @@ class Estimator:
         With the estimator's own masks (read off the same depth) this is judged only until a calibration is
         accepted: then it keeps a start that depth pulls off from being taken (seed 103's UR5e + 2F-85: ADD 87.15
         -> 0 without it); once one stands it fired 0 of 489 times on four runs and cost 8 % of a frame
-        (issue 34)."""
+        (issue 34). `judged`: False for a stage that only ranks starts (`_refine_silhouette`)."""
         lost_px = min(MIN_SPAN_PX, self._span_px(T, frames[0]) / 2)
         T = self._solve(T, frames, sigmas, clouds, models, lost_px)
-        judged = not (self._own_masks and self.T_cam_base is not None)
+        judged = judged and not (self._own_masks and self.T_cam_base is not None)
         if clouds and judged and self._span_px(T, frames[0]) >= lost_px:
             T_masks = self._solve(T, frames, sigmas[-1:], [], models, lost_px)
             (with_depth, _), (masks, error) = (contour_fit(self.parts, X, frames) for X in (T, T_masks))

@@ -109,16 +109,18 @@ class PpfDetector:
         refs = np.arange(0, len(points), step)
         best = _vote(points, normals, R_scene, refs, self.reach, self.keys, self.ref, self.alpha, len(self.points),
                      self.step, self.opts.angle_bins)
-        out = []
-        for r, (votes, m, b) in zip(refs, best):
-            if votes <= 0:  # no neighbour, or no pair the model has
-                continue
-            angle = (b + 0.5) * 2 * np.pi / self.opts.angle_bins
-            T_m = make_T(self.R_ref[m], -self.R_ref[m] @ self.points[m])
-            T_s = make_T(R_scene[r], -R_scene[r] @ points[r])
-            R_x = make_T(Rotation.from_euler("x", angle).as_matrix())
-            out.append((float(votes), np.linalg.inv(T_s) @ R_x @ T_m))
-        return out
+        voted = best[:, 0] > 0  # else no neighbour, or no pair the model has
+        r, m, b = refs[voted], best[voted, 1], best[voted, 2]
+        # T_cam_model = T_s^-1 R_x(angle) T_m, T_m and T_s turning the model and scene reference points' normals
+        # onto +x about their points, for every vote at once
+        R_x = Rotation.from_euler("x", (b[:, None] + 0.5) * 2 * np.pi / self.opts.angle_bins).as_matrix()
+        R_s_t = np.transpose(R_scene[r], (0, 2, 1))
+        T = np.zeros((len(r), 4, 4))
+        T[:, :3, :3] = R_s_t @ R_x @ self.R_ref[m]
+        T[:, :3, 3] = points[r] - np.einsum("nij,nj->ni", R_s_t @ R_x, np.einsum("nij,nj->ni", self.R_ref[m],
+                                                                                   self.points[m]))
+        T[:, 3, 3] = 1.0
+        return [(float(v), T_i) for v, T_i in zip(best[voted, 0], T)]
 
     def _clusters(self, votes: list[tuple[float, np.ndarray]]) -> list[np.ndarray]:
         """Greedy clusters (within a tenth of the diameter and 2 angle bins), strongest first, averaged. A vote
