@@ -438,10 +438,12 @@ class Estimator:
                 # was the prior's and the depth's; refined again on the colours learned from it, until the robot
                 # moves less than a pixel, from that fit alone (the other starts lost to it on this frame already:
                 # seeds 131, 103, 151 and held-out 157 the same or better, the first frame's refinement 868 -> 653 ms),
-                # at the finest scale only: that fit has descended the coarse ones (seed 131's first frames 1091 ->
-                # 1064 ms, its ADD the same to 0.02)
+                # with depth at the finest scale only: that fit has descended the coarse ones (seed 131's first frames
+                # 1091 -> 1064 ms, its ADD the same to 0.02); RGB only, the motion's first calibration lies centimetres
+                # off and keeps them (data/mini's six segments 41.05/45.82, 2.60 mm after 15 frames; 38.22/42.87,
+                # 3.03 mm at the finest scale only)
                 for _ in range(COLOUR_ROUNDS):
-                    T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings, others=False, fine=True)
+                    T, T_new = T_new, self._refined(T_new, T_base_ee, found, timings, others=False, fine=has_depth)
                     seen = self._segment_again(T_new, rgb, depth, K, found, timings)
                     if self.parts.motion_px(placed(T, found.parts), placed(T_new, found.parts), K) < 1.0:
                         break
@@ -764,11 +766,12 @@ class Estimator:
                 return warm
         scored = sorted(((fit(T, frames), i) for i, T in enumerate(starts)), reverse=True)
         chosen = [starts[i] for _, i in scored[:opts.silhouette_starts]]
-        if self._own_masks and len(chosen) > 1 and len(sigmas) > 1:
+        if self._own_masks and clouds and len(chosen) > 1 and len(sigmas) > 1:
             # the estimator's own masks: every start descends the coarsest stage, the best of them (`_best`) the
             # others, and only its descent is judged against depth (`_descend`): a first frame descended three starts
             # to the finest scale (seed 131's first frames 1064 -> 935 ms; with the PPF's votes and the colour
-            # rounds' finest scale, seeds 131 and 137 ADD 93.14 and 85.16 against 93.20 and 85.15)
+            # rounds' finest scale, seeds 131 and 137 ADD 93.14 and 85.16 against 93.20 and 85.15). RGB only, every
+            # start descends every scale (thinned, data/mini's six segments 41.05/45.82 -> 38.24/42.89)
             coarse = [self._descend(T, frames, sigmas[:1], clouds, models, judged=False) for T in chosen]
             chosen, sigmas = [coarse[self._best(coarse, frames, clouds, models)[0]]], sigmas[1:]
         descended = ([warm] if warm is not None else []) + [self._descend(T, frames, sigmas, clouds, models)
