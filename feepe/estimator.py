@@ -809,7 +809,7 @@ class Estimator:
         (issue 34). `judged`: False for a stage that only ranks starts (`_refine_silhouette`)."""
         lost_px = min(MIN_SPAN_PX, self._span_px(T, frames[0]) / 2)
         T = self._solve(T, frames, sigmas, clouds, models, lost_px)
-        judged = judged and not (self._own_masks and self.T_cam_base is not None)
+        judged = judged and not self._tracking
         if clouds and judged and self._span_px(T, frames[0]) >= lost_px:
             T_masks = self._solve(T, frames, sigmas[-1:], [], models, lost_px)
             (with_depth, _), (masks, error) = (contour_fit(self.parts, X, frames) for X in (T, T_masks))
@@ -823,6 +823,7 @@ class Estimator:
         no_matches = stack([])
         opts = self.opts
         inner = OptimizeOptions(max_iterations=SOLVE_ITERATIONS, min_decrease=MIN_DECREASE, min_step=MIN_STEP)
+        round_moved_m = WARM_ROUND_MOVED_M if self._tracking else ROUND_MOVED_M
         for k, sigma in enumerate(sigmas):
             # each frame's mask weighs by how well it fits (beside depth at every stage, else at the finest):
             # a segmenter's few-pixel errors then yield the range to depth and to the better masks, exact masks
@@ -843,9 +844,15 @@ class Estimator:
                 T_new, _ = optimize(T, no_matches, inner, terms=terms)
                 moved = np.linalg.norm(T_new[:3, 3] - T[:3, 3])
                 T = T_new
-                if moved < (WARM_ROUND_MOVED_M if self._own_masks and self.T_cam_base is not None else ROUND_MOVED_M):
+                if moved < round_moved_m:
                     break
         return T
+
+    @property
+    def _tracking(self) -> bool:
+        """Whether a calibration stands and the refinement fits the estimator's own masks: each frame then goes on
+        from the last, and depth is no longer judged against those masks (read off the same depth)."""
+        return self._own_masks and self.T_cam_base is not None
 
     def _span_px(self, T: np.ndarray, frame: tuple) -> float:
         """A bound on the model's image extent in the frame at calibration T (`PartsSilhouette.span_px`)."""
