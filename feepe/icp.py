@@ -18,7 +18,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from feepe.optimize import Term, add_row, cost_of_squares, jacobian_row, robust_sigma, store_sums, sums_of
+from feepe.optimize import (CONVERGED, DAMPING_FACTOR, DAMPING_MAX, DAMPING_MIN, DAMPING_START, DIAG_FLOOR, Term,
+                            add_row, compiled_step, cost_of_squares, jacobian_row, robust_sigma, store_sums, sums_of)
 from kernel.camera import backproject
 from kernel.errors import UserError
 from kernel.transforms import inv_T, transform_points
@@ -225,8 +226,55 @@ class PlaneTerm(Term):
         _plane_pass(*self._arrays(T_cam_base), np.zeros((6, 6)), np.zeros(6), squares, False)
         return cost_of_squares(squares)
 
+    def solve(self, T_init: np.ndarray, max_iterations: int) -> np.ndarray:
+        """`optimize(T_init, no matches, OptimizeOptions(max_iterations=...), [self])`'s calibration, its
+        Levenberg-Marquardt loop compiled: a registration refines 24 hypotheses by 8 rounds of ICP, and
+        optimize's Python around each step outweighed the few thousand rows (cProfile, seed-131 stereo first
+        frames: 1.39 s of 2.83 s in 1152 solves)."""
+        if not len(self.inv_sigma):
+            return T_init
+        return _plane_solve(*self._arrays(T_init), max_iterations)
+
     def __len__(self) -> int:
         return len(self.inv_sigma)
+
+
+@numba.njit(cache=True, nogil=True)
+def _plane_normal_equations(points, normals, target, inv_sigma, T):
+    """PlaneTerm.normal_equations from zero: H (symmetric), g and the cost."""
+    H, g, squares = np.zeros((6, 6)), np.zeros(6), np.empty(points.shape[0])
+    _plane_pass(points, normals, target, inv_sigma, T, H, g, squares, True)
+    for p in range(6):
+        for q in range(p):
+            H[p, q] = H[q, p]
+    return H, g, np.log1p(squares).sum()
+
+
+@numba.njit(cache=True, nogil=True)
+def _plane_solve(points, normals, target, inv_sigma, T, max_iterations):
+    """feepe.optimize.optimize's loop (its damping, its stops; min_decrease and min_step 0) over PlaneTerm alone."""
+    damping = DAMPING_START
+    H, g, cost = _plane_normal_equations(points, normals, target, inv_sigma, T)
+    no_H, no_g, squares = np.zeros((6, 6)), np.zeros(6), np.empty(points.shape[0])
+    for _ in range(max_iterations):
+        while True:
+            A = H.copy()
+            for p in range(6):
+                A[p, p] += damping * (H[p, p] + DIAG_FLOOR)
+            x = np.linalg.solve(A, -g)
+            T_new = compiled_step(T, x)
+            _plane_pass(points, normals, target, inv_sigma, T_new, no_H, no_g, squares, False)
+            cost_new = np.log1p(squares).sum()
+            if cost_new <= cost or damping > DAMPING_MAX:
+                break
+            damping *= DAMPING_FACTOR
+        if cost_new > cost:
+            break
+        T, damping = T_new, max(damping / DAMPING_FACTOR, DAMPING_MIN)
+        H, g, cost = _plane_normal_equations(points, normals, target, inv_sigma, T)
+        if max(np.sqrt(x[0] ** 2 + x[1] ** 2 + x[2] ** 2), np.sqrt(x[3] ** 2 + x[4] ** 2 + x[5] ** 2)) < CONVERGED:
+            break
+    return T
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

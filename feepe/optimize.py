@@ -221,6 +221,28 @@ def _step(T: np.ndarray, x: np.ndarray) -> np.ndarray:
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def compiled_step(T, x):
+    """`_step` in a compiled loop: the rotation vector's matrix by Rodrigues' formula, as cv2.Rodrigues forms it
+    (the identity below machine epsilon)."""
+    theta = np.sqrt(x[0] ** 2 + x[1] ** 2 + x[2] ** 2)
+    R = np.eye(3)
+    if theta >= np.finfo(np.float64).eps:
+        c, s = np.cos(theta), np.sin(theta)
+        rx, ry, rz = x[0] / theta, x[1] / theta, x[2] / theta
+        r = (rx, ry, rz)
+        skew = np.array([[0.0, -rz, ry], [rz, 0.0, -rx], [-ry, rx, 0.0]])
+        for i in range(3):
+            for j in range(3):
+                R[i, j] = (c if i == j else 0.0) + (1.0 - c) * r[i] * r[j] + s * skew[i, j]
+    out = T.copy()
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = R[i, 0] * T[0, j] + R[i, 1] * T[1, j] + R[i, 2] * T[2, j]
+        out[i, 3] = T[i, 3] + x[3 + i]
+    return out
+
+
 def _size(x: np.ndarray) -> float:
     """A step's size: the larger of its rotation (rad) and translation (m)."""
     return max(np.linalg.norm(x[:3]), np.linalg.norm(x[3:]))

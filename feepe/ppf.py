@@ -25,7 +25,6 @@ from scipy.spatial.transform import Rotation
 
 from feepe.depth import normal_map
 from feepe.icp import PlaneTerm, SurfaceModel, associate
-from feepe.optimize import OptimizeOptions, optimize, stack
 from kernel.camera import point_map
 from kernel.transforms import make_T, rotation_angle
 
@@ -156,14 +155,13 @@ class PpfDetector:
         return self._clusters(self._votes(points, normals))
 
     def _refine(self, T: np.ndarray, scene: np.ndarray) -> np.ndarray:
-        """Point-to-plane ICP of the model into the scene points (the shared optimiser, one frame)."""
-        no_matches = stack([])
+        """Point-to-plane ICP of the model into the scene points (the shared optimiser's loop, compiled for these
+        rows alone: `PlaneTerm.solve`)."""
         for gate in np.linspace(0.1 * self.diameter, 2 * self.opts.inlier_m, self.opts.icp_rounds):
             planes = associate(T, [(np.eye(4), scene)], self.surface, gate)
             if len(planes.target_cam) < 6:
                 break
-            T, _ = optimize(T, no_matches, OptimizeOptions(max_iterations=10),
-                            [PlaneTerm(planes, self.opts.inlier_m / 2)])
+            T = PlaneTerm(planes, self.opts.inlier_m / 2).solve(T, max_iterations=10)
         return T
 
     def detect(self, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, float] | None:

@@ -28,7 +28,6 @@ from scipy.spatial import cKDTree
 
 from feepe.depth import normal_map
 from feepe.icp import PlaneTerm, SurfaceModel, associate
-from feepe.optimize import OptimizeOptions, optimize, stack
 from feepe.ppf import PpfDetector, PpfOptions, voxel_sample
 from kernel.camera import point_map
 from kernel.transforms import rotation_angle
@@ -164,15 +163,13 @@ class SceneSearch:
         starts = self.detector.hypotheses(self.points, self.normals) if whole else []
         if near:
             starts += near_hypotheses(self.model, self.cloud, self.points, self.detector.step)
-        no_matches = stack([])
         out = []
         for T in starts:
             for gate in np.linspace(*ICP_GATES_M, ICP_ROUNDS):
                 planes = associate(T, [(np.eye(4), self.points)], self.model, gate)
                 if len(planes.target_cam) < 6:
                     break
-                T, _ = optimize(T, no_matches, OptimizeOptions(max_iterations=10),
-                                [PlaneTerm(planes, PLANE_TOL_M / 3)])
+                T = PlaneTerm(planes, PLANE_TOL_M / 3).solve(T, max_iterations=10)
             if is_new(T, out):
                 out.append(T)
         return out
