@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from eval.handeye import METHODS, BoardDetector, calibrate
-from feepe.ppf import PpfDetector, PpfOptions
+from feepe.ppf import PpfDetector, PpfOptions, voxel_sample
 from feepe.icp import SurfaceModel
 from kernel.errors import UserError
 from kernel.transforms import make_T, rotation_angle, transform_points
@@ -102,3 +102,20 @@ def test_ppf_votes_join_the_first_cluster_they_are_near():
     np.testing.assert_allclose(poses[0][:3, 3], [(0.08 * 9 + 0.09 * 2) / 21, 0, 0], atol=1e-12)
     np.testing.assert_allclose(poses[1][:3, 3], [0.15, 0, 0], atol=1e-12)
     np.testing.assert_allclose(poses[2][:3, :3], turned, atol=1e-12)
+
+
+def test_voxel_sample_means_each_occupied_voxel():
+    """One point per occupied voxel, in lexicographic order of the voxels' indices (negative ones included), the
+    mean of its points and the renormalised mean of its normals, as written out voxel by voxel."""
+    rng = np.random.default_rng(3)
+    points, normals = rng.normal(0, 0.2, (3000, 3)) + [0.1, -0.3, 0.8], rng.normal(size=(3000, 3))
+    sampled, sampled_normals = voxel_sample(points, normals, 0.05)
+    cells = np.floor(points / 0.05).astype(int)
+    occupied = sorted(set(map(tuple, cells)))
+    assert len(sampled) == len(occupied) < len(points)
+    for k, cell in enumerate(occupied):
+        inside = np.all(cells == cell, axis=1)
+        mean_normal = normals[inside].sum(0)
+        assert np.allclose(sampled[k], points[inside].mean(0), rtol=0, atol=1e-12)
+        assert np.allclose(sampled_normals[k], mean_normal / np.linalg.norm(mean_normal), rtol=0, atol=1e-12)
+    assert all(a.shape == (0, 3) for a in voxel_sample(np.zeros((0, 3)), np.zeros((0, 3)), 0.05))
