@@ -347,15 +347,17 @@ class SilhouetteTerm(Term):
         self.base_points, self.view = base_points[order], view[order]
         self.sigma_px = np.broadcast_to(np.asarray(sigma_px, float), (len(views),)).copy()
         self.bounds = np.searchsorted(self.view, np.arange(len(views) + 1))
-        # the frames' fields and intrinsics as numba reads them, so that one call evaluates every frame
-        self._fields = numba.typed.List([v.field for v in views]) if views else None
-        self._K = np.array([v.K for v in views], float).reshape(-1, 3, 3)
+        # the frames with points, one compiled call each: a numba typed list of the fields, which let one call
+        # evaluate every frame, was compiled again in each process (0.4 s; its methods are not cached), and a call
+        # costs microseconds
+        self._frames = [(f, views[f].field, np.ascontiguousarray(views[f].K, dtype=float))
+                        for f in range(len(views)) if self.bounds[f] < self.bounds[f + 1]]
 
     def residuals(self, T_cam_base: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
         e, J = np.empty((len(self.view), 1)), np.empty((len(self.view), 1, 6)) if jacobian else np.empty((0, 1, 6))
-        if self._fields is not None:
-            T = np.ascontiguousarray(T_cam_base, dtype=float)
-            _term_rows(self.base_points, self.bounds, self._K, self._fields, T, self.sigma_px, e, J)
+        T = np.ascontiguousarray(T_cam_base, dtype=float)
+        for f, field, K in self._frames:
+            _term_rows(self.base_points, self.bounds[f], self.bounds[f + 1], K, field, T, self.sigma_px[f], e, J)
         return e, (J if jacobian else None)
 
     def normal_equations(self, T_cam_base: np.ndarray, H: np.ndarray, g: np.ndarray) -> float:
@@ -365,10 +367,12 @@ class SilhouetteTerm(Term):
         return self._pass(T_cam_base, np.zeros((6, 6)), np.zeros(6), False)
 
     def _pass(self, T_cam_base: np.ndarray, H: np.ndarray, g: np.ndarray, linearise: bool) -> float:
-        if self._fields is None:
+        if not self._frames:
             return 0.0
         T, squares = np.ascontiguousarray(T_cam_base, dtype=float), np.empty(len(self.view))
-        _term_pass(self.base_points, self.bounds, self._K, self._fields, T, self.sigma_px, H, g, squares, linearise)
+        for f, field, K in self._frames:
+            _term_pass(self.base_points, self.bounds[f], self.bounds[f + 1], K, field, T, self.sigma_px[f], H, g,
+                       squares, linearise)
         return cost_of_squares(squares)
 
     def __len__(self) -> int:
@@ -376,29 +380,25 @@ class SilhouetteTerm(Term):
 
 
 @numba.njit(cache=True, nogil=True)
-def _term_rows(points, bounds, Ks, fields, T, sigmas, e, J):
-    """SilhouetteTerm.residuals over its frames in one call (frame i's points are rows bounds[i]:bounds[i+1])
-    and, when J has rows, their Jacobian (optimize.jacobian_row)."""
-    for f in range(len(fields)):
-        field, K = fields[f], Ks[f]  # once per frame: a typed list's item costs more than a row
-        for i in range(bounds[f], bounds[f + 1]):
-            e[i, 0], qx, qy, qz, gx, gy, gz = _contour_row(points, K, T, field, sigmas[f], i, J.shape[0] > 0)
-            if J.shape[0]:
-                jacobian_row(J, i, qx, qy, qz, gx, gy, gz)
+def _term_rows(points, start, end, K, field, T, sigma, e, J):
+    """SilhouetteTerm.residuals of one frame, its points rows start:end, and, when J has rows, their Jacobian
+    (optimize.jacobian_row)."""
+    for i in range(start, end):
+        e[i, 0], qx, qy, qz, gx, gy, gz = _contour_row(points, K, T, field, sigma, i, J.shape[0] > 0)
+        if J.shape[0]:
+            jacobian_row(J, i, qx, qy, qz, gx, gy, gz)
 
 
 @numba.njit(cache=True, nogil=True)
-def _term_pass(points, bounds, Ks, fields, T, sigmas, H, g, squares, linearise):
-    """SilhouetteTerm's squared rows over its frames into `squares` and, when `linearise`, its rows added to the
-    normal equations (optimize.add_row)."""
+def _term_pass(points, start, end, K, field, T, sigma, H, g, squares, linearise):
+    """SilhouetteTerm's squared rows of one frame (rows start:end) into `squares` and, when `linearise`, those
+    rows added to the normal equations (optimize.add_row)."""
     s = sums_of(H, g)
-    for f in range(len(fields)):
-        field, K = fields[f], Ks[f]
-        for i in range(bounds[f], bounds[f + 1]):
-            e, qx, qy, qz, gx, gy, gz = _contour_row(points, K, T, field, sigmas[f], i, linearise)
-            squares[i] = e ** 2
-            if linearise:
-                s = add_row(s, e, qx, qy, qz, gx, gy, gz)
+    for i in range(start, end):
+        e, qx, qy, qz, gx, gy, gz = _contour_row(points, K, T, field, sigma, i, linearise)
+        squares[i] = e ** 2
+        if linearise:
+            s = add_row(s, e, qx, qy, qz, gx, gy, gz)
     store_sums(s, H, g)
 
 
