@@ -25,7 +25,8 @@ from feepe.memory import MemoryEntry, MemoryPool
 from feepe.motion import CLIP_FRAMES, MotionClip, MotionFit, motion_starts
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
-from feepe.registration import DepthFit, SceneSearch, depth_fit, is_new, outline_contrast
+from feepe.registration import (DepthFit, SceneSearch, contrast_along, contrast_image, depth_fit, is_new,
+                                outline_contrast)
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
 from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, segment
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, depth_planes, iou_bound,
@@ -512,10 +513,11 @@ class Estimator:
         accepted). `model`: the robot's surface samples placed by this frame's joint states (base frame)."""
         search = SceneSearch(model, depth, K, seed=self.frame)
         self._add_hypotheses(search.hypotheses(near=self.frame > 0))
-        judged = [_coarse_judgement(self.parts, h[0], T_base_parts, rgb, depth, K) for h in self._hypotheses]
+        colours = _coarse_colours(rgb, K)
+        judged = [_coarse_judgement(self.parts, h[0], T_base_parts, colours, depth, K) for h in self._hypotheses]
         if self.frame == 0 and all(verdict == FAILS for _, verdict in judged):
             self._add_hypotheses(search.hypotheses(near=True, whole=False))
-            judged += [_coarse_judgement(self.parts, h[0], T_base_parts, rgb, depth, K)
+            judged += [_coarse_judgement(self.parts, h[0], T_base_parts, colours, depth, K)
                        for h in self._hypotheses[len(judged):]]
         for h, (score, _) in zip(self._hypotheses, judged):
             h[1] += score
@@ -924,12 +926,18 @@ def _coarse_depth_fit(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_par
     return depth_fit(rendered, coarse), rendered
 
 
-def _coarse_judgement(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray,
+def _coarse_colours(rgb: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """The frame's colours on the coarse grid as outlines are judged on them (registration.contrast_image)."""
+    return contrast_image(strided(rgb, K, IOU_STRIDE)[0])
+
+
+def _coarse_judgement(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, colours: np.ndarray,
                       depth: np.ndarray, K: np.ndarray) -> tuple[float, str]:
     """A hypothesis judged on the coarse grid, as it stands: its depth score (`_depth_score`) and its verdict
-    (`_explains_frame`), from one render and one contrast on the coarse meshes' outline."""
+    (`_explains_frame`), from one render and one contrast on the coarse meshes' outline (`colours`: the frame's
+    `_coarse_colours`)."""
     fit, rendered = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
-    contrast = outline_contrast(rendered > 0, strided(rgb, K, IOU_STRIDE)[0])
+    contrast = contrast_along(rendered > 0, colours)
     return fit.score(contrast), _verdict(fit, rendered.size, contrast)
 
 
@@ -937,7 +945,7 @@ def _depth_score(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: n
                  depth: np.ndarray, K: np.ndarray) -> float:
     """A calibration's depth fit to the frame (coarse grid), its agreement borne out by the colour across its
     outline: how hypotheses are scored and ranked (registration.DepthFit.score)."""
-    return _coarse_judgement(parts, T_cam_base, T_base_parts, rgb, depth, K)[0]
+    return _coarse_judgement(parts, T_cam_base, T_base_parts, _coarse_colours(rgb, K), depth, K)[0]
 
 
 def _explains_frame(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray,

@@ -229,6 +229,17 @@ def outline_contrast(drawn: np.ndarray, rgb: np.ndarray) -> float:
     CONTRAST_OFFSET_PX inside differs from the colour as far outside by more than CONTRAST_RGB, among the
     outline's pixels that are not black or white on both sides (but at least CONTRAST_JUDGED of the outline); the
     image's border is no outline. 0 when nothing is drawn."""
+    return contrast_along(drawn, contrast_image(rgb))
+
+
+def contrast_image(rgb: np.ndarray) -> np.ndarray:
+    """The colours outline_contrast compares: the image blurred over a pixel and brought to white
+    (exposure_gain). Made once for a frame whose many hypotheses' outlines are judged (`contrast_along`)."""
+    return cv2.GaussianBlur(np.asarray(rgb, np.float32), (0, 0), 1.0) * exposure_gain(rgb)
+
+
+def contrast_along(drawn: np.ndarray, image: np.ndarray) -> float:
+    """outline_contrast on the frame's `contrast_image`."""
     mask = np.asarray(drawn, np.uint8)
     v, u = np.nonzero(mask & ~cv2.erode(mask, np.ones((3, 3), np.uint8)).astype(bool))
     if len(u) == 0:
@@ -236,7 +247,6 @@ def outline_contrast(drawn: np.ndarray, rgb: np.ndarray) -> float:
     smooth = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), 2.0)
     inward = np.stack([cv2.Sobel(smooth, cv2.CV_32F, 1, 0)[v, u], cv2.Sobel(smooth, cv2.CV_32F, 0, 1)[v, u]], 1)
     inward /= np.linalg.norm(inward, axis=1, keepdims=True) + 1e-9
-    image = cv2.GaussianBlur(np.asarray(rgb, np.float32), (0, 0), 1.0) * exposure_gain(rgb)
     pixels, step = np.stack([u, v], 1), CONTRAST_OFFSET_PX * inward
     inner, outer = np.round(pixels + step).astype(int), np.round(pixels - step).astype(int)
     size = mask.shape[::-1]
