@@ -239,6 +239,20 @@ class PlaneTerm(Term):
         return len(self.inv_sigma)
 
 
+def icp_into_points(T_cam_model: np.ndarray, points: np.ndarray, model: SurfaceModel, gates_m: np.ndarray,
+                    sigma_m: float) -> np.ndarray:
+    """Point-to-plane ICP of `model` into the scene `points` (camera frame) from T_cam_model: each round pairs the
+    points with their nearest model points within its gate (`gates_m`, one per round) and solves on those pairs
+    (`PlaneTerm.solve`, 10 steps); it stops early once fewer than 6 points pair. The robot's registration and the
+    PPF peer refine their hypotheses so."""
+    for gate in gates_m:
+        planes = associate(T_cam_model, [(np.eye(4), points)], model, gate)
+        if len(planes.target_cam) < 6:
+            break
+        T_cam_model = PlaneTerm(planes, sigma_m).solve(T_cam_model, max_iterations=10)
+    return T_cam_model
+
+
 @numba.njit(cache=True, nogil=True)
 def _plane_normal_equations(points, normals, target, inv_sigma, T):
     """PlaneTerm.normal_equations from zero: H (symmetric), g and the cost."""

@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from feepe.depth import normal_map
-from feepe.icp import PlaneTerm, SurfaceModel, associate
+from feepe.icp import SurfaceModel, icp_into_points
 from kernel.camera import point_map
 from kernel.transforms import make_T, rotation_angle
 
@@ -158,14 +158,10 @@ class PpfDetector:
         return self._clusters(self._votes(points, normals))
 
     def _refine(self, T: np.ndarray, scene: np.ndarray) -> np.ndarray:
-        """Point-to-plane ICP of the model into the scene points (the shared optimiser's loop, compiled for these
-        rows alone: `PlaneTerm.solve`)."""
-        for gate in np.linspace(0.1 * self.diameter, 2 * self.opts.inlier_m, self.opts.icp_rounds):
-            planes = associate(T, [(np.eye(4), scene)], self.surface, gate)
-            if len(planes.target_cam) < 6:
-                break
-            T = PlaneTerm(planes, self.opts.inlier_m / 2).solve(T, max_iterations=10)
-        return T
+        """Point-to-plane ICP of the model into the scene points, its gate shrinking from a tenth of the model's
+        diameter to twice the inlier distance."""
+        gates = np.linspace(0.1 * self.diameter, 2 * self.opts.inlier_m, self.opts.icp_rounds)
+        return icp_into_points(T, scene, self.surface, gates, self.opts.inlier_m / 2)
 
     def detect(self, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, float] | None:
         """T_cam_model and the fraction of scene points it explains; None when the scene is too small."""

@@ -27,7 +27,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from feepe.depth import normal_map
-from feepe.icp import PlaneTerm, SurfaceModel, associate
+from feepe.icp import SurfaceModel, icp_into_points
 from feepe.ppf import PpfDetector, PpfOptions, voxel_sample
 from kernel.camera import point_map
 from kernel.transforms import rotation_angle
@@ -165,11 +165,7 @@ class SceneSearch:
             starts += near_hypotheses(self.model, self.cloud, self.points, self.detector.step)
         out = []
         for T in starts:
-            for gate in np.linspace(*ICP_GATES_M, ICP_ROUNDS):
-                planes = associate(T, [(np.eye(4), self.points)], self.model, gate)
-                if len(planes.target_cam) < 6:
-                    break
-                T = PlaneTerm(planes, PLANE_TOL_M / 3).solve(T, max_iterations=10)
+            T = icp_into_points(T, self.points, self.model, np.linspace(*ICP_GATES_M, ICP_ROUNDS), PLANE_TOL_M / 3)
             if is_new(T, out):
                 out.append(T)
         return out
