@@ -14,7 +14,8 @@ from feepe.registration import (CONTRAST_RGB, PPF, SceneSearch, background_plane
                                 near_hypotheses, outline_contrast, parts, scene_points)
 from feepe.robot_starts import RobotSamples
 from feepe import segmentation
-from feepe.segmentation import ColourModel, edge_alpha_logodds, model_view, robot_logodds, segment, trust
+from feepe.segmentation import (GIVEN_TILE_PX, ColourModel, edge_alpha_logodds, local_trust, model_view, robot_logodds,
+                               segment, trust)
 from feepe.silhouette import PartsSilhouette, SilhouetteModel, iou
 from kernel.transforms import inv_T, make_T, rotation_angle
 from tests.test_feepe_robot_starts import _arm
@@ -196,6 +197,25 @@ def test_a_given_mask_is_a_prior_its_errors_overruled_and_its_agreement_counted(
     stray = np.roll(visible, 120, axis=1)
     ignored = segment(parts, off, at, rgb, blind, K, ColourModel(), 6.0, robot_mask=stray)
     assert trust(iou(stray, alone.robot)) == 0.0 and np.array_equal(ignored.robot, alone.robot)
+
+
+def test_a_given_mask_is_judged_region_by_region_once_a_calibration_stands():
+    """A segmenter's robot mask moved 4 px outwards over the left half of the image: the tiles there lose
+    their trust and the others keep it, and at the calibration that stands the segmentation keeps its own
+    outline there rather than follow the mask (judged frame by frame only, it follows)."""
+    parts, T_parts, depth, rgb, visible, _ = _scene()
+    at = np.repeat(np.eye(4)[None], 4, 0)
+    grown = cv2.dilate(visible.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))) > 0
+    half = visible.shape[1] // 2 // GIVEN_TILE_PX * GIVEN_TILE_PX
+    flawed = visible.copy()
+    flawed[:, :half] = grown[:, :half]
+    local = local_trust(flawed, visible)
+    outline = visible & ~(cv2.erode(visible.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    assert local[:, :half][outline[:, :half]].max() == 0.0 and local[:, half:].min() == 1.0
+    blind = np.zeros_like(depth)
+    framewise = segment(parts, T_CAM_BASE, at, rgb, blind, K, ColourModel(), 2.0, robot_mask=flawed)
+    regional = segment(parts, T_CAM_BASE, at, rgb, blind, K, ColourModel(), 2.0, robot_mask=flawed, regions=True)
+    assert iou(regional.robot, visible) > iou(framewise.robot, visible) + 0.01
 
 
 def _no_mask_estimator(tiny_dataset, scene, given_masks: str = "truth"):
