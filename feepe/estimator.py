@@ -405,8 +405,9 @@ class Estimator:
                 timings["total"] = 1e3 * (time.perf_counter() - t_start)
                 return FrameResult(None, None, 0.0, 0, 0, timings)
             t0 = time.perf_counter()
+            standing = self.T_cam_base is not None
             seen = segment(self.parts.coarse, T, T_base_parts, rgb, depth, K, self.colour, self._band_px,
-                           self._depth_sigma, robot_mask=robot_mask, ee_mask=ee_mask, cover=self.T_cam_base is not None)
+                           self._depth_sigma, robot_mask=robot_mask, ee_mask=ee_mask, cover=standing, regions=standing)
             timings["segmentation"] = 1e3 * (time.perf_counter() - t0)
             self._refresh_key_frames(T)
         # once a calibration stands, the template path's starts never beat its warm refinement (four stereo
@@ -641,7 +642,7 @@ class Estimator:
             if self.parts.motion_px(placed(seen.T_cam_base, entry.found.parts), placed(T, entry.found.parts), K) > 1.0:
                 again = segment(self.parts.coarse, T, entry.found.parts, seen.rgb, seen.depth, K, self.colour,
                                 BAND_MIN_PX, self._depth_sigma, robot_mask=seen.robot_mask, ee_mask=seen.ee_mask,
-                                cover=seen.cover, sensor=seen.sensor_depth)
+                                cover=seen.cover, sensor=seen.sensor_depth, regions=seen.cover)
                 entry.found.segmentation, entry.found.silhouette = again, mask_view(again.robot, K, seen.depth)
                 if entry.found.surface is not None:
                     entry.found.cloud = _robot_cloud(again, K, self.opts.depth_window_px)

@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 from feepe.depth import normal_map
 from feepe.icp import SurfaceModel, icp_into_points
 from feepe.ppf import PpfDetector, PpfOptions, voxel_sample
+from feepe.silhouette import outline_pixels
 from kernel.camera import point_map
 from kernel.transforms import rotation_angle
 
@@ -237,7 +238,7 @@ def contrast_image(rgb: np.ndarray) -> np.ndarray:
 def contrast_along(drawn: np.ndarray, image: np.ndarray) -> float:
     """outline_contrast on the frame's `contrast_image`."""
     mask = np.asarray(drawn, np.uint8)
-    v, u = np.nonzero(mask & ~cv2.erode(mask, np.ones((3, 3), np.uint8)).astype(bool))
+    v, u = np.nonzero(outline_pixels(mask))
     if len(u) == 0:
         return 0.0
     smooth = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), 2.0)

@@ -21,7 +21,7 @@ import numba
 import numpy as np
 
 from feepe.optimize import robust_sigma
-from feepe.silhouette import iou
+from feepe.silhouette import iou, outline_pixels
 
 BINS = 16  # colour histogram levels per RGB channel (16^3 bins), as RBOT's 32^3 on a smaller image
 PRIOR_LOGODDS = 4.0  # the ramp's log-odds at the band's edges (P = 0.98 inside, 0.02 outside). Inside it stays
@@ -262,14 +262,14 @@ def local_trust(given: np.ndarray, own: np.ndarray) -> np.ndarray:
     """(H, W) trust in a handed-in mask region by region: in each GIVEN_TILE_PX tile, how far (px) it lies from
     the estimator's own mask on average - the pixels where the two differ per pixel of own outline there (a tile
     with no outline: per pixel) - falling from 1 to 0 over GIVEN_TRUST_PX."""
-    h, w = own.shape
-    t = GIVEN_TILE_PX
-    outline = own & ~(cv2.erode(own.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
-    padded = ((0, -h % t), (0, -w % t))
-    differ = np.pad(given ^ own, padded).reshape((h + -h % t) // t, t, -1, t).sum((1, 3))
-    edge = np.pad(outline, padded).reshape((h + -h % t) // t, t, -1, t).sum((1, 3))
+    (h, w), t = own.shape, GIVEN_TILE_PX
+
+    def per_tile(image: np.ndarray) -> np.ndarray:
+        return np.pad(image, ((0, -h % t), (0, -w % t))).reshape((h + -h % t) // t, t, -1, t).sum((1, 3))
+
     low, high = GIVEN_TRUST_PX
-    tiles = np.clip((high - differ / np.maximum(edge, 1)) / (high - low), 0.0, 1.0).astype(np.float32)
+    distance = per_tile(given ^ own) / np.maximum(per_tile(outline_pixels(own)), 1)
+    tiles = np.clip((high - distance) / (high - low), 0.0, 1.0).astype(np.float32)
     return np.repeat(np.repeat(tiles, t, 0), t, 1)[:h, :w]
 
 
@@ -279,14 +279,15 @@ def given_logodds(own: np.ndarray, view: ModelView, robot_mask: np.ndarray | Non
     own segmentation `own` (P > 0.5) and, with `regions` (a calibration stands), by `local_trust` region by
     region: a robot mask says robot inside and not robot outside; an end-effector mask alone says robot inside
     and not robot where the model's nearest part is the end-effector."""
+    def weight(given: np.ndarray, seen: np.ndarray):
+        return trust(iou(given, seen)) * (local_trust(given, seen) if regions else 1.0)
+
     out = np.zeros(view.part.shape, np.float32)
     if robot_mask is not None:
-        weight = trust(iou(robot_mask, own)) * (local_trust(robot_mask, own) if regions else 1.0)
-        out += weight * GIVEN_LOGODDS * np.where(robot_mask, 1.0, -1.0)
+        out += weight(robot_mask, own) * GIVEN_LOGODDS * np.where(robot_mask, 1.0, -1.0)
     elif ee_mask is not None:
         near_ee = view.part == 0
-        weight = trust(iou(ee_mask, own & near_ee)) * (local_trust(ee_mask, own & near_ee) if regions else 1.0)
-        out += weight * GIVEN_LOGODDS * np.where(ee_mask, 1.0, -1.0 * near_ee)
+        out += weight(ee_mask, own & near_ee) * GIVEN_LOGODDS * np.where(ee_mask, 1.0, -1.0 * near_ee)
     return out
 
 
@@ -325,21 +326,20 @@ class Segmentation:
 def segment(parts, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
             K: np.ndarray, colour: "ColourModel", band_px: float, sigma_m: float = MIN_DEPTH_SIGMA_M,
             robot_mask: np.ndarray | None = None, ee_mask: np.ndarray | None = None,
-            cover: bool = False, sensor: bool | None = None, regions: bool | None = None) -> Segmentation:
+            cover: bool = False, sensor: bool | None = None, regions: bool = False) -> Segmentation:
     """`parts`: the robot's PartsSilhouette (the end-effector first), placed at T_cam_base by `T_base_parts`.
     The depth's scale `sigma_m` holds a stereo camera's noise and a few millimetres of calibration error.
     `robot_mask` / `ee_mask`: masks handed in (a segmenter's), a prior weighed by their agreement. `cover`: the
     outline's pixels read by how much of them the robot covers, once a calibration stands. `sensor`: whether the
     depth is a sensor's, where a segmentation of the same frame judged it already (`Segmentation.sensor_depth`).
-    `regions`: the handed-in masks judged region by region too (`local_trust`); by default once a calibration
-    stands (`cover`), and the estimator asks for it at a frame's refined calibration before that."""
+    `regions`: the handed-in masks judged region by region too (`local_trust`), where the model is placed to a
+    pixel or two (a calibration stands, or a frame's refined one)."""
     T_cam_parts = np.einsum("ij,njk->nik", T_cam_base, T_base_parts)
     view = model_view(*parts.render_parts(T_cam_parts, K, depth.shape))
     has_depth = bool((depth > 0).any())
     sensor = has_depth and (is_sensor_depth(depth) if sensor is None else sensor)
     logodds = robot_logodds(rgb, depth if has_depth else None, view, colour, band_px, sigma_m, sensor, cover)
     if robot_mask is not None or ee_mask is not None:
-        regions = cover if regions is None else regions
         logodds = logodds + given_logodds(logodds > 0, view, robot_mask, ee_mask, regions)
     probability = _probability(logodds)
     robot = probability > 0.5

@@ -571,6 +571,12 @@ def strided(image: np.ndarray, K: np.ndarray, stride: int) -> tuple[np.ndarray, 
     return image[::stride, ::stride], np.diag([1.0 / stride, 1.0 / stride, 1.0]) @ K
 
 
+def outline_pixels(mask: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the mask's pixels with a neighbour (of eight) off it; the image's border is no outline."""
+    m = np.asarray(mask, np.uint8)
+    return (m & ~(cv2.erode(m, np.ones((3, 3), np.uint8)) > 0)).astype(bool)
+
+
 def iou(a: np.ndarray, b: np.ndarray) -> float:
     union = np.count_nonzero(a | b)
     return np.count_nonzero(a & b) / union if union else 0.0

@@ -16,7 +16,7 @@ from feepe.robot_starts import RobotSamples
 from feepe import segmentation
 from feepe.segmentation import (GIVEN_TILE_PX, ColourModel, edge_alpha_logodds, local_trust, model_view, robot_logodds,
                                segment, trust)
-from feepe.silhouette import PartsSilhouette, SilhouetteModel, iou
+from feepe.silhouette import PartsSilhouette, SilhouetteModel, iou, outline_pixels
 from kernel.transforms import inv_T, make_T, rotation_angle
 from tests.test_feepe_robot_starts import _arm
 
@@ -210,7 +210,7 @@ def test_a_given_mask_is_judged_region_by_region_once_a_calibration_stands():
     flawed = visible.copy()
     flawed[:, :half] = grown[:, :half]
     local = local_trust(flawed, visible)
-    outline = visible & ~(cv2.erode(visible.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    outline = outline_pixels(visible)
     assert local[:, :half][outline[:, :half]].max() == 0.0 and local[:, half:].min() == 1.0
     blind = np.zeros_like(depth)
     framewise = segment(parts, T_CAM_BASE, at, rgb, blind, K, ColourModel(), 2.0, robot_mask=flawed)

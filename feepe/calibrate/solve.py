@@ -18,7 +18,7 @@ from feepe.calibrate.robot import UrdfRobot
 from feepe.estimator import Estimator, FeepeOptions, RobotView, fitting_own_masks, load_models
 from feepe.onboarding import onboard
 from feepe.registration import depth_tolerance
-from feepe.silhouette import PartsSilhouette, SilhouetteModel, placed
+from feepe.silhouette import PartsSilhouette, SilhouetteModel, outline_pixels, placed
 from kernel.errors import UserError
 
 MASKS = ("none", "given")
@@ -141,10 +141,7 @@ def check(solve_: Solve, recording: Recording, robot: UrdfRobot | None, on_frame
 def outline_distance(rendered: np.ndarray, seen: np.ndarray, focal_px: float) -> tuple[float, float]:
     """Mean distance from the model's outline pixels (`rendered`: its depth, 0 off it) to the seen mask's
     outline: in pixels, and as a length at the model's depth there (mm)."""
-    def outline(m):
-        m = m.astype(np.uint8)
-        return (m - cv2.erode(m, np.ones((3, 3), np.uint8))).astype(bool)
-    edge, drawn = outline(seen), outline(rendered > 0)
+    edge, drawn = outline_pixels(seen), outline_pixels(rendered > 0)
     if not edge.any() or not drawn.any():
         return float("nan"), float("nan")
     distance = cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[drawn]
