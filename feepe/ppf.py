@@ -85,22 +85,9 @@ class PpfDetector:
         else:
             pairs = cKDTree(self.points).query_pairs(self.reach, output_type="ndarray")
             i, j = np.concatenate([pairs[:, 0], pairs[:, 1]]), np.concatenate([pairs[:, 1], pairs[:, 0]])
-        keys, alpha = self._pairs(self.points, self.normals, self.R_ref, i, j)
-        order = np.argsort(keys, kind="stable")
-        self.keys, self.ref, self.alpha = keys[order], i[order], alpha[order]
-
-    def _pairs(self, points, normals, R_ref, i, j) -> tuple[np.ndarray, np.ndarray]:
-        """Hash keys of the pair features of (i -> j) and the angle of j about i's normal after alignment."""
-        d = points[j] - points[i]
-        dist = np.linalg.norm(d, axis=1)
-        du = d / np.maximum(dist[:, None], 1e-12)
-        angles = np.arccos(np.clip(np.stack([np.sum(normals[i] * du, 1), np.sum(normals[j] * du, 1),
-                                             np.sum(normals[i] * normals[j], 1)], 1), -1.0, 1.0))
-        q = np.floor(angles / (np.pi / self.opts.angle_bins)).astype(np.int64)
-        qd = np.floor(dist / self.step).astype(np.int64)
-        keys = ((qd * self.opts.angle_bins + q[:, 0]) * self.opts.angle_bins + q[:, 1]) * self.opts.angle_bins + q[:, 2]
-        local = np.einsum("nij,nj->ni", R_ref[i], d)
-        return keys, np.arctan2(local[:, 2], local[:, 1])
+        keys, alpha = _pairs(self.points, self.normals, self.R_ref, i, j, self.step, self.opts.angle_bins)
+        order, self.first = _hash_table(keys)
+        self.ref, self.alpha = i[order], alpha[order]
 
     def _votes(self, points, normals) -> list[tuple[float, np.ndarray]]:
         """(votes, T_cam_model) of each scene reference point's best (model point, angle)."""
@@ -109,7 +96,7 @@ class PpfDetector:
         if self.opts.max_references:
             step = max(step, -(-len(points) // self.opts.max_references))
         refs = np.arange(0, len(points), step)
-        best = _vote(points, normals, R_scene, refs, self.reach, self.keys, self.ref, self.alpha, len(self.points),
+        best = _vote(points, normals, R_scene, refs, self.reach, self.first, self.ref, self.alpha, len(self.points),
                      self.step, self.opts.angle_bins)
         voted = best[:, 0] > 0  # else no neighbour, or no pair the model has
         r, m, b = refs[voted], best[voted, 1], best[voted, 2]
@@ -183,7 +170,7 @@ class PpfDetector:
 @numba.njit(cache=True, nogil=True)
 def _pair_key(p, n, q, m, R, step, bins):
     """The quantised feature of the pair (p -> q) and the angle of q about p's normal once p's normal is turned
-    onto +x, as `PpfDetector._pairs` computes them, in scalars."""
+    onto +x, in scalars: the model's table (`_pairs`) and the scene's votes (`_vote`) read the same key."""
     dx, dy, dz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
     dist = np.sqrt(dx * dx + dy * dy + dz * dz)
     s = max(dist, 1e-12)
@@ -200,7 +187,35 @@ def _pair_key(p, n, q, m, R, step, bins):
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _vote(S, SN, SR, refs, reach, keys, ref, alpha, n_model, step, bins):
+def _pairs(points, normals, R_ref, i, j, step, bins):
+    """The model's hash table entries: each pair (i -> j)'s key and the angle of j about i's normal (`_pair_key`),
+    on both cores (in numpy a robot's table of a million pairs took 0.17 s, half its first frame's registration)."""
+    keys, alpha = np.empty(i.shape[0], np.int64), np.empty(i.shape[0])
+    for t in numba.prange(i.shape[0]):
+        a, b = i[t], j[t]
+        keys[t], alpha[t] = _pair_key(points[a], normals[a], points[b], normals[b], R_ref[a], step, bins)
+    return keys, alpha
+
+
+@numba.njit(cache=True, nogil=True)
+def _hash_table(keys):
+    """The pairs ordered by key (as np.argsort(keys, kind="stable")) and where each key's run starts in that
+    order (`first[k]:first[k + 1]`), by counting: the keys span about a million values (distance steps x 30^3
+    angle bins), and a robot's two million pairs sort in a seventh of argsort's time, while a vote finds its
+    run in one read instead of two binary searches."""
+    first = np.zeros(keys.max() + 2 if keys.shape[0] else 1, np.int64)
+    for k in keys:
+        first[k + 1] += 1
+    first = np.cumsum(first)
+    at, order = first.copy(), np.empty(keys.shape[0], np.int64)
+    for t in range(keys.shape[0]):
+        order[at[keys[t]]] = t
+        at[keys[t]] += 1
+    return order, first
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _vote(S, SN, SR, refs, reach, first, ref, alpha, n_model, step, bins):
     """Drost's voting, each reference point on its own: every scene point within `reach` (Drost: the model's
     diameter) forms a pair with it, every model pair of the same key votes for (model point, angle); (votes,
     model point, angle bin) of its peak, votes 0 when nothing voted. Reference points run on both cores."""
@@ -213,7 +228,9 @@ def _vote(S, SN, SR, refs, reach, keys, ref, alpha, n_model, step, bins):
             if j == r or dx * dx + dy * dy + dz * dz > reach * reach:
                 continue
             key, a_scene = _pair_key(S[r], SN[r], S[j], SN[j], SR[r], step, bins)
-            for t in range(np.searchsorted(keys, key), np.searchsorted(keys, key + 1)):
+            if key + 1 >= first.shape[0]:
+                continue
+            for t in range(first[key], first[key + 1]):
                 theta = (a_scene - alpha[t]) % (2 * np.pi)
                 acc[ref[t] * bins + np.int64(np.floor(theta / (2 * np.pi) * bins))] += 1
         best = np.argmax(acc)
