@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from eval.handeye import METHODS, BoardDetector, calibrate
-from feepe.ppf import PpfDetector, PpfOptions, voxel_sample
+from feepe.ppf import PpfDetector, PpfOptions, _hash_table, voxel_sample
 from feepe.icp import SurfaceModel
 from kernel.errors import UserError
 from kernel.transforms import make_T, rotation_angle, transform_points
@@ -119,3 +119,17 @@ def test_voxel_sample_means_each_occupied_voxel():
         assert np.allclose(sampled[k], points[inside].mean(0), rtol=0, atol=1e-12)
         assert np.allclose(sampled_normals[k], mean_normal / np.linalg.norm(mean_normal), rtol=0, atol=1e-12)
     assert all(a.shape == (0, 3) for a in voxel_sample(np.zeros((0, 3)), np.zeros((0, 3)), 0.05))
+
+
+def test_ppf_hash_table_orders_pairs_as_a_stable_sort_and_finds_each_keys_run():
+    """The counting sort of the model's pair keys is np.argsort's stable order, and each key's run in it starts
+    and ends where a binary search over the sorted keys puts it (a key no pair has: an empty run)."""
+    keys = np.random.default_rng(5).integers(0, 500, 20000)
+    keys = keys[keys != 17]
+    order, first = _hash_table(keys)
+    np.testing.assert_array_equal(order, np.argsort(keys, kind="stable"))
+    ranked = keys[order]
+    for k in (0, 17, 499, int(keys.max())):
+        assert (first[k], first[k + 1]) == (np.searchsorted(ranked, k), np.searchsorted(ranked, k + 1))
+    assert first[17] == first[18]
+    assert len(first) == keys.max() + 2 and _hash_table(np.zeros(0, np.int64))[1].tolist() == [0]
