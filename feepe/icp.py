@@ -133,68 +133,77 @@ def associate(T_cam_base: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]
     return PlaneTerms.joined(parts)
 
 
+CANDIDATES = 4  # model points a depth point's pairing keeps: the nearest of them stays its nearest until the point
+# moves by as much as the gap to the next one (seed 197 scene 9's later frames: with the nearest and the second only,
+# 1,200 of a frame's 6,700 points searched the KD-tree again a call, with four a median 14; three and six cost more)
+
+
 @dataclass
 class Pairing:
-    """One frame's depth points paired with their nearest model points, and what tells whether each pairing
-    still holds once the calibration has moved: the point's place in the model's frame when it was paired, its
-    distance then to the nearest model point (inf: none within the search's reach) and a lower bound on the
-    distance to the second nearest (to the nearest, with none within the reach: the reach). A point moved by d
-    keeps its nearest while 2 d is less than the gap between the two (the triangle inequality), whichever point
-    of whichever cloud stands there: the pairing belongs to its model alone."""
+    """One frame's depth points, each with the CANDIDATES model points nearest to it when it was last searched for,
+    its place then in the model's frame, and a lower bound on the distance from there to every other model point
+    (the farthest candidate's; the search's reach where fewer lay within it). A point moved by d since lies at least
+    that bound less d from every other model point, so while a candidate lies nearer, the nearest candidate is its
+    nearest (the triangle inequality), whichever point of whichever cloud stands there: the pairing belongs to its
+    model alone."""
     model: SurfaceModel
     placed: np.ndarray  # (N, 3) model frame
-    nearest: np.ndarray  # (N,) model point index (len(model.points): none within the reach)
-    first: np.ndarray  # (N,)
+    candidates: np.ndarray  # (N, CANDIDATES) model point indices, nearest first (len(model.points): none)
     beyond: np.ndarray  # (N,)
 
 
 def associate_again(T_cam_base: np.ndarray, frame: tuple[np.ndarray, np.ndarray], model: SurfaceModel,
                     gate_m: float, kept: Pairing | None = None) -> tuple[PlaneTerms, Pairing]:
     """`associate` for one frame (T_base_model, observed cloud), the same pairs, with the KD-tree queried again only
-    for the points whose last pairing (`kept`, made at another calibration) may no longer hold; and the pairing to
-    keep. Points are searched out to twice the gate, so that one with no model point that near stays beyond the
-    gate while it moves less than the gate."""
+    for the points whose candidates (`kept`, found at another calibration) may no longer hold their nearest; and the
+    pairing to keep. Points are searched out to twice the gate, so that one with no model point that near stays
+    beyond the gate while it moves less than the gate."""
     T_base_model, cloud = frame
-    n, reach = len(cloud), 2.0 * gate_m
+    n, reach, n_model = len(cloud), 2.0 * gate_m, len(model.points)
     if kept is None or kept.model is not model or len(kept.placed) != n:
-        kept = Pairing(model, np.full((n, 3), np.inf), np.full(n, len(model.points)), np.full(n, np.inf), np.zeros(n))
-    placed, redo, near = np.empty((n, 3)), np.empty(n, np.bool_), np.empty(n, np.bool_)
+        kept = Pairing(model, np.full((n, 3), np.inf), np.full((n, CANDIDATES), n_model), np.zeros(n))
+    placed, nearest = np.empty((n, 3)), np.empty(n, np.int64)
     _still_paired(np.ascontiguousarray(inv_T(T_cam_base @ T_base_model)), np.ascontiguousarray(cloud, dtype=float),
-                  kept.placed, kept.first, kept.beyond, kept.nearest, model.points, gate_m, placed, redo, near)
-    again = np.flatnonzero(redo)
+                  kept.placed, kept.candidates, kept.beyond, model.points, gate_m, placed, nearest)
+    again = np.flatnonzero(nearest < 0)
     if len(again):
         moved = np.take(placed, again, axis=0)
-        dist, idx = model.tree.query(moved, k=2, distance_upper_bound=reach)
-        kept = Pairing(model, kept.placed.copy(), kept.nearest.copy(), kept.first.copy(), kept.beyond.copy())
-        kept.placed[again], kept.nearest[again], kept.first[again] = moved, idx[:, 0], dist[:, 0]
-        kept.beyond[again] = np.minimum(dist[:, 1], reach)  # the reach where none lies within it
-        near[again] = dist[:, 0] < gate_m
-    paired = np.flatnonzero(near)
-    return PlaneTerms.of_pairs(T_base_model, model, kept.nearest[paired], np.take(cloud, paired, axis=0)), kept
+        dist, idx = model.tree.query(moved, k=CANDIDATES, distance_upper_bound=reach)
+        kept = Pairing(model, kept.placed.copy(), kept.candidates.copy(), kept.beyond.copy())
+        kept.placed[again], kept.candidates[again] = moved, idx
+        kept.beyond[again] = np.minimum(dist[:, -1], reach)  # the reach where fewer lie within it
+        nearest[again] = np.where(dist[:, 0] < gate_m, idx[:, 0], n_model)
+    paired = np.flatnonzero(nearest < n_model)
+    return PlaneTerms.of_pairs(T_base_model, model, nearest[paired], np.take(cloud, paired, axis=0)), kept
 
 
 @numba.njit(cache=True, nogil=True)
-def _still_paired(A, cloud, ref, first, beyond, nearest, points, gate, placed, redo, near):
-    """associate_again's test, one pass: each point placed by A (camera to model frame); whether it moved from its
-    place when paired (`ref`) by half the gap between its nearest and second nearest model point then (or, with
-    none within the reach, by that lower bound less the gate), so that its pairing may have changed (`redo`); else
-    whether its nearest lies within the gate (`near`)."""
+def _still_paired(A, cloud, ref, candidates, beyond, points, gate, placed, nearest):
+    """associate_again's test, one pass: each point placed by A (camera to model frame) and its nearest model point
+    within the gate (`nearest`; len(points): none) where its candidates settle it - one of them lies nearer than
+    every other model point can (`beyond` less how far it moved from `ref`), or neither they nor any other lies
+    within the gate - else -1: to be searched for again."""
     n_model = points.shape[0]
     for i in range(cloud.shape[0]):
         for r in range(3):
             placed[i, r] = A[r, 0] * cloud[i, 0] + A[r, 1] * cloud[i, 1] + A[r, 2] * cloud[i, 2] + A[r, 3]
         moved = np.sqrt((placed[i, 0] - ref[i, 0]) ** 2 + (placed[i, 1] - ref[i, 1]) ** 2
                         + (placed[i, 2] - ref[i, 2]) ** 2)
-        if np.isfinite(first[i]):
-            redo[i] = 2.0 * moved >= beyond[i] - first[i]
+        best, best_d = n_model, np.inf
+        for c in range(candidates.shape[1]):
+            j = candidates[i, c]
+            if j < n_model:
+                d = np.sqrt((placed[i, 0] - points[j, 0]) ** 2 + (placed[i, 1] - points[j, 1]) ** 2
+                            + (placed[i, 2] - points[j, 2]) ** 2)
+                if d < best_d:
+                    best, best_d = j, d
+        others = beyond[i] - moved  # no other model point lies nearer
+        if best_d < others:
+            nearest[i] = best if best_d < gate else n_model
+        elif best_d >= gate and others > gate:
+            nearest[i] = n_model
         else:
-            redo[i] = not moved < beyond[i] - gate
-        near[i] = False
-        if not redo[i] and nearest[i] < n_model:
-            j = nearest[i]
-            d = np.sqrt((placed[i, 0] - points[j, 0]) ** 2 + (placed[i, 1] - points[j, 1]) ** 2
-                        + (placed[i, 2] - points[j, 2]) ** 2)
-            near[i] = d < gate
+            nearest[i] = -1
 
 
 class PlaneTerm(Term):
