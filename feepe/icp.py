@@ -253,9 +253,12 @@ def icp_into_points(T_cam_model: np.ndarray, points: np.ndarray, model: SurfaceM
     """Point-to-plane ICP of `model` into the scene `points` (camera frame) from T_cam_model: each round pairs the
     points with their nearest model points within its gate (`gates_m`, one per round) and solves on those pairs
     (`PlaneTerm.solve`, 10 steps); it stops early once fewer than 6 points pair. The robot's registration and the
-    PPF peer refine their hypotheses so."""
+    PPF peer refine their hypotheses so. Each round's pairs are those of `associate`, the KD-tree searched again only
+    where the last round's pairing may no longer hold (`associate_again`): the later rounds move the model by
+    millimetres."""
+    kept, frame = None, (np.eye(4), points)
     for gate in gates_m:
-        planes = associate(T_cam_model, [(np.eye(4), points)], model, gate)
+        planes, kept = associate_again(T_cam_model, frame, model, gate, kept)
         if len(planes.target_cam) < 6:
             break
         T_cam_model = PlaneTerm(planes, sigma_m).solve(T_cam_model, max_iterations=10)

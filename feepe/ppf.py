@@ -168,9 +168,9 @@ class PpfDetector:
 
 
 @numba.njit(cache=True, nogil=True)
-def _pair_key(p, n, q, m, R, step, bins):
-    """The quantised feature of the pair (p -> q) and the angle of q about p's normal once p's normal is turned
-    onto +x, in scalars: the model's table (`_pairs`) and the scene's votes (`_vote`) read the same key."""
+def _pair_key(p, n, q, m, step, bins):
+    """The quantised feature (distance, three angles) of the pair (p -> q) with normals n and m, in scalars: the
+    model's table (`_pairs`) and the scene's votes (`_vote`) read the same key."""
     dx, dy, dz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
     dist = np.sqrt(dx * dx + dy * dy + dz * dz)
     s = max(dist, 1e-12)
@@ -179,21 +179,29 @@ def _pair_key(p, n, q, m, R, step, bins):
     a1 = np.arccos(min(max(m[0] * ux + m[1] * uy + m[2] * uz, -1.0), 1.0))
     a2 = np.arccos(min(max(n[0] * m[0] + n[1] * m[1] + n[2] * m[2], -1.0), 1.0))
     width = np.pi / bins
-    key = ((np.int64(np.floor(dist / step)) * bins + np.int64(np.floor(a0 / width))) * bins
-           + np.int64(np.floor(a1 / width))) * bins + np.int64(np.floor(a2 / width))
+    return ((np.int64(np.floor(dist / step)) * bins + np.int64(np.floor(a0 / width))) * bins
+            + np.int64(np.floor(a1 / width))) * bins + np.int64(np.floor(a2 / width))
+
+
+@numba.njit(cache=True, nogil=True)
+def _pair_angle(dx, dy, dz, R):
+    """The angle of the pair's second point (dx, dy, dz from the first) about the first's normal once R turns
+    that normal onto +x."""
     ly = R[1, 0] * dx + R[1, 1] * dy + R[1, 2] * dz
     lz = R[2, 0] * dx + R[2, 1] * dy + R[2, 2] * dz
-    return key, np.arctan2(lz, ly)
+    return np.arctan2(lz, ly)
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _pairs(points, normals, R_ref, i, j, step, bins):
-    """The model's hash table entries: each pair (i -> j)'s key and the angle of j about i's normal (`_pair_key`),
+    """The model's hash table entries: each pair (i -> j)'s key and the angle of j about i's normal,
     on both cores (in numpy a robot's table of a million pairs took 0.17 s, half its first frame's registration)."""
     keys, alpha = np.empty(i.shape[0], np.int64), np.empty(i.shape[0])
     for t in numba.prange(i.shape[0]):
         a, b = i[t], j[t]
-        keys[t], alpha[t] = _pair_key(points[a], normals[a], points[b], normals[b], R_ref[a], step, bins)
+        keys[t] = _pair_key(points[a], normals[a], points[b], normals[b], step, bins)
+        alpha[t] = _pair_angle(points[b, 0] - points[a, 0], points[b, 1] - points[a, 1], points[b, 2] - points[a, 2],
+                               R_ref[a])
     return keys, alpha
 
 
@@ -218,23 +226,35 @@ def _hash_table(keys):
 def _vote(S, SN, SR, refs, reach, first, ref, alpha, n_model, step, bins):
     """Drost's voting, each reference point on its own: every scene point within `reach` (Drost: the model's
     diameter) forms a pair with it, every model pair of the same key votes for (model point, angle); (votes,
-    model point, angle bin) of its peak, votes 0 when nothing voted. Reference points run on both cores."""
+    model point, angle bin) of its peak (the first of equal ones, as np.argmax), votes 0 when nothing voted.
+    Reference points run on both cores, every n-th on each, each core with one accumulator whose cells count
+    only for the reference point that last stamped them: no accumulator of a million cells cleared and searched
+    per reference point (the near pass's), and a pair's angle computed only for a key the model has."""
     out = np.zeros((refs.shape[0], 3), np.int64)
-    for q in numba.prange(refs.shape[0]):
-        r = refs[q]
+    n_cores = min(numba.get_num_threads(), refs.shape[0])
+    for core in numba.prange(n_cores):
         acc = np.zeros(n_model * bins + 1, np.int64)  # + 1: a turn that rounds up to 2 pi lands past the end
-        for j in range(S.shape[0]):
-            dx, dy, dz = S[j, 0] - S[r, 0], S[j, 1] - S[r, 1], S[j, 2] - S[r, 2]
-            if j == r or dx * dx + dy * dy + dz * dz > reach * reach:
-                continue
-            key, a_scene = _pair_key(S[r], SN[r], S[j], SN[j], SR[r], step, bins)
-            if key + 1 >= first.shape[0]:
-                continue
-            for t in range(first[key], first[key + 1]):
-                theta = (a_scene - alpha[t]) % (2 * np.pi)
-                acc[ref[t] * bins + np.int64(np.floor(theta / (2 * np.pi) * bins))] += 1
-        best = np.argmax(acc)
-        out[q, 0], out[q, 1], out[q, 2] = acc[best], best // bins, best % bins
+        stamp = np.full(n_model * bins + 1, -1, np.int64)
+        for q in range(core, refs.shape[0], n_cores):
+            r = refs[q]
+            most, peak = 0, 0
+            for j in range(S.shape[0]):
+                dx, dy, dz = S[j, 0] - S[r, 0], S[j, 1] - S[r, 1], S[j, 2] - S[r, 2]
+                if j == r or dx * dx + dy * dy + dz * dz > reach * reach:
+                    continue
+                key = _pair_key(S[r], SN[r], S[j], SN[j], step, bins)
+                if key + 1 >= first.shape[0] or first[key] == first[key + 1]:
+                    continue
+                a_scene = _pair_angle(dx, dy, dz, SR[r])
+                for t in range(first[key], first[key + 1]):
+                    theta = (a_scene - alpha[t]) % (2 * np.pi)
+                    cell = ref[t] * bins + np.int64(np.floor(theta / (2 * np.pi) * bins))
+                    if stamp[cell] != q:
+                        stamp[cell], acc[cell] = q, 0
+                    acc[cell] += 1
+                    if acc[cell] > most or (acc[cell] == most and cell < peak):
+                        most, peak = acc[cell], cell
+            out[q, 0], out[q, 1], out[q, 2] = most, peak // bins, peak % bins
     return out
 
 
