@@ -145,7 +145,7 @@ class Pairing:
     (the farthest candidate's; the search's reach where fewer lay within it). A point moved by d since lies at least
     that bound less d from every other model point, so while a candidate lies nearer, the nearest candidate is its
     nearest (the triangle inequality), whichever point of whichever cloud stands there: the pairing belongs to its
-    model alone."""
+    model alone, and holds for any gate (ICP's rounds shrink theirs and keep one)."""
     model: SurfaceModel
     placed: np.ndarray  # (N, 3) model frame
     candidates: np.ndarray  # (N, CANDIDATES) model point indices, nearest first (len(model.points): none)

@@ -164,13 +164,13 @@ def _greedy_clusters(t, R, radius, max_angle):
     """Each vote's cluster (numbered as opened): the first whose first vote lies within `radius` and `max_angle`
     (kernel.transforms.rotation_angle in scalars) of it, else a new one."""
     label, first, k = np.empty(t.shape[0], np.int64), np.empty(t.shape[0], np.int64), 0
+    M = np.empty((3, 3))  # a vote's rotation relative to a cluster's first
     for v in range(t.shape[0]):
         label[v] = -1
         for c in range(k):
             f = first[c]
             if np.sqrt((t[v, 0] - t[f, 0]) ** 2 + (t[v, 1] - t[f, 1]) ** 2 + (t[v, 2] - t[f, 2]) ** 2) >= radius:
                 continue
-            M = np.zeros((3, 3))
             for i in range(3):
                 for j in range(3):
                     M[i, j] = R[v, 0, i] * R[f, 0, j] + R[v, 1, i] * R[f, 1, j] + R[v, 2, i] * R[f, 2, j]
@@ -185,10 +185,10 @@ def _greedy_clusters(t, R, radius, max_angle):
 
 
 @numba.njit(cache=True, nogil=True)
-def _pair_key(p, n, q, m, step, bins):
-    """The quantised feature (distance, three angles) of the pair (p -> q) with normals n and m, in scalars: the
-    model's table (`_pairs`) and the scene's votes (`_vote`) read the same key."""
-    dx, dy, dz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
+def _pair_key(dx, dy, dz, n, m, step, bins):
+    """The quantised feature (distance, three angles) of a pair of points (dx, dy, dz from the first to the second)
+    with normals n and m, in scalars: the model's table (`_pairs`) and the scene's votes (`_vote`) read the same
+    key."""
     dist = np.sqrt(dx * dx + dy * dy + dz * dz)
     s = max(dist, 1e-12)
     ux, uy, uz = dx / s, dy / s, dz / s
@@ -216,9 +216,8 @@ def _pairs(points, normals, R_ref, i, j, step, bins):
     keys, alpha = np.empty(i.shape[0], np.int64), np.empty(i.shape[0])
     for t in numba.prange(i.shape[0]):
         a, b = i[t], j[t]
-        keys[t] = _pair_key(points[a], normals[a], points[b], normals[b], step, bins)
-        alpha[t] = _pair_angle(points[b, 0] - points[a, 0], points[b, 1] - points[a, 1], points[b, 2] - points[a, 2],
-                               R_ref[a])
+        dx, dy, dz = points[b, 0] - points[a, 0], points[b, 1] - points[a, 1], points[b, 2] - points[a, 2]
+        keys[t], alpha[t] = _pair_key(dx, dy, dz, normals[a], normals[b], step, bins), _pair_angle(dx, dy, dz, R_ref[a])
     return keys, alpha
 
 
@@ -258,7 +257,7 @@ def _vote(S, SN, SR, refs, reach, first, ref, alpha, n_model, step, bins, n_core
                 dx, dy, dz = S[j, 0] - S[r, 0], S[j, 1] - S[r, 1], S[j, 2] - S[r, 2]
                 if j == r or dx * dx + dy * dy + dz * dz > reach * reach:
                     continue
-                key = _pair_key(S[r], SN[r], S[j], SN[j], step, bins)
+                key = _pair_key(dx, dy, dz, SN[r], SN[j], step, bins)
                 if key + 1 >= first.shape[0] or first[key] == first[key + 1]:
                     continue
                 a_scene = _pair_angle(dx, dy, dz, SR[r])

@@ -22,7 +22,7 @@ import trimesh
 
 from feepe import raster
 from feepe.depth import depth_at
-from feepe.icp import PlaneTerms, SurfaceModel, associate_again
+from feepe.icp import Pairing, PlaneTerms, SurfaceModel, associate_again
 from feepe.optimize import Term, add_row, cost_of_squares, jacobian_row, robust_sigma, store_sums, sums_of
 from kernel.camera import project
 from kernel.errors import UserError
@@ -58,8 +58,8 @@ class MaskView:
     # outlines then stay put.
     contours: dict = field(default_factory=dict, repr=False)
     ious: dict = field(default_factory=dict, repr=False)  # the same for the mask IoU per model and stride
-    # the frame's depth points' last pairing with the model per association gate (`depth_planes`)
-    pairings: dict = field(default_factory=dict, repr=False)
+    # the frame's depth points' last pairing with the model (`depth_planes`; it holds for any gate)
+    pairing: Pairing | None = field(default=None, repr=False)
 
     @property
     def sdt(self) -> np.ndarray:
@@ -461,7 +461,7 @@ def depth_planes(T_cam_base: np.ndarray, views: list[MaskView], clouds: list[tup
     surfaces = surfaces if isinstance(surfaces, list) else [surfaces] * len(clouds)
     found = []
     for mv, cloud, surface in zip(views, clouds, surfaces):
-        planes, mv.pairings[gate_m] = associate_again(T_cam_base, cloud, surface, gate_m, mv.pairings.get(gate_m))
+        planes, mv.pairing = associate_again(T_cam_base, cloud, surface, gate_m, mv.pairing)
         found.append(planes)
     return PlaneTerms.joined(found)
 
