@@ -514,12 +514,16 @@ class Estimator:
         of three coarse pixels spans that), summed over the frames seen. Once the whole scene has failed, its
         nearest parts are searched too (registration.near_hypotheses): on the first frame when none of the whole
         scene's hypotheses explains it as it stands (`_coarse_judgement`), on every later one (no calibration was
-        accepted). `model`: the robot's surface samples placed by this frame's joint states (base frame)."""
-        search = SceneSearch(model, depth, K, seed=self.frame)
-        self._add_hypotheses(search.hypotheses(near=self.frame > 0))
+        accepted), unless a start passed the last frame: that frame's hypotheses are judged on this one, which
+        decides whether that start is taken (seed 211's Panda + Shadow Hand, a start passing from frame 1 and taken
+        at frame 3, searched 1.0 and 0.7 s in frames 2 and 3 for no hypothesis it took). `model`: the robot's surface
+        samples placed by this frame's joint states (base frame)."""
+        search = SceneSearch(model, depth, K, seed=self.frame) if self._passing is None else None
+        if search is not None:
+            self._add_hypotheses(search.hypotheses(near=self.frame > 0))
         colours = _coarse_colours(rgb, K)
         judged = [_coarse_judgement(self.parts, h[0], T_base_parts, colours, depth, K) for h in self._hypotheses]
-        if self.frame == 0 and all(verdict == FAILS for _, verdict in judged):
+        if search is not None and self.frame == 0 and all(verdict == FAILS for _, verdict in judged):
             self._add_hypotheses(search.hypotheses(near=True, whole=False))
             judged += [_coarse_judgement(self.parts, h[0], T_base_parts, colours, depth, K)
                        for h in self._hypotheses[len(judged):]]

@@ -439,23 +439,30 @@ def test_a_first_calibration_short_of_the_sure_bars_waits_for_a_frame_that_bears
                                                                                         kept_score):
     """A first calibration that passes the acceptance tests without clearing the higher bars (here raised past
     any start) is not returned on its frame: it is the next frame's start, taken on a frame that scores it, before
-    its refinement there, at KEPT_SCORE of that refinement's score; with the share out of reach (10) never."""
+    its refinement there, at KEPT_SCORE of that refinement's score; with the share out of reach (10) never. A frame
+    that starts from a kept start judges the hypotheses it has and searches the scene for none."""
     import feepe.estimator as estimator
     from kernel.bop import read_frame
 
     monkeypatch.setattr(estimator, "SURE_AGREE", 1.01)
     monkeypatch.setattr(estimator, "KEPT_SCORE", kept_score)
+    searches = []
+    monkeypatch.setattr(estimator, "SceneSearch", lambda *a, **k: searches.append(1) or SceneSearch(*a, **k))
     scene = next(s for s in sorted((tiny_dataset / "test").iterdir()) if "robotiq_2f85" in (s / "scene_robot.json").read_text())
     est, meta, ids, robot, links = _no_mask_estimator(tiny_dataset, scene)
-    taken = []
+    taken, kept, searched = [], [], []
     for i in ids[:4]:
         f = read_frame(scene, i)
+        kept.append(est._passing is not None and est.T_cam_base is None)
+        n = len(searches)
         r = est.step(f.rgb, f.depth, None, f.K, f.T_base_ee, _joint_states(robot, links, f))
         taken.append(r.T_cam_base is not None)
+        searched.append(len(searches) > n)
         if r.T_cam_base is not None:
             dT = inv_T(meta.T_cam_base) @ r.T_cam_base
             assert np.linalg.norm(dT[:3, 3]) < 0.01 and np.degrees(rotation_angle(dT[:3, :3], np.eye(3))) < 0.5, i
-    assert not taken[0]
+    assert not taken[0] and any(kept)
+    assert searched == [not k and not t for k, t in zip(kept, [False] + taken[:-1])], (kept, searched)
     if kept_score < 1:
         assert any(taken[1:]), taken
     else:
