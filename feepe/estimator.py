@@ -25,10 +25,10 @@ from feepe.memory import MemoryEntry, MemoryPool
 from feepe.motion import CLIP_FRAMES, MotionClip, MotionFit, motion_starts
 from feepe.onboarding import TemplateBank, onboard
 from feepe.optimize import OptimizeOptions, optimize, reprojection_px, stack
-from feepe.registration import (DepthFit, SceneSearch, contrast_along, contrast_image, depth_fit, is_new,
-                                outline_contrast)
+from feepe.registration import (DepthFit, SceneSearch, contrast_along, contrast_image, depth_fit, hidden,
+                                is_new, outline_contrast)
 from feepe.robot_starts import RobotSamples, observed_points, robot_starts
-from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, Segmentation, depth_sigma, segment
+from feepe.segmentation import MIN_DEPTH_SIGMA_M, ColourModel, ModelView, Segmentation, depth_sigma, segment
 from feepe.silhouette import (PartsSilhouette, SilhouetteModel, contour_fit, contour_term, depth_planes, iou_bound,
                               mask_view, mean_iou, placed, strided)
 from feepe.symmetry import consensus
@@ -589,7 +589,7 @@ class Estimator:
         """How well a first calibration explains the frame (with depth: SURE, PASSES or FAILS) or, RGB only,
         the motion so far and the frame's colours across its outline (SURE or FAILS)."""
         if has_depth:
-            return _explains_frame(self.parts, T_cam_base, T_base_parts, rgb, depth, K, seen.view.inside > 0)
+            return _explains_frame(self.parts, T_cam_base, T_base_parts, rgb, depth, K, seen.view)
         explains = (bool(self._hypotheses) and outline_contrast(seen.view.inside > 0, rgb) >= RGB_CONTRAST
                     and MotionFit(self._clip).score(T_cam_base) >= MOTION_KEPT * self._hypotheses[0][1])
         return SURE if explains else FAILS
@@ -926,12 +926,12 @@ def _robot_cloud(seen: Segmentation, K: np.ndarray, window_px: float) -> np.ndar
 
 
 def _coarse_depth_fit(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, depth: np.ndarray,
-                      K: np.ndarray) -> tuple[DepthFit, np.ndarray]:
+                      K: np.ndarray) -> tuple[DepthFit, np.ndarray, np.ndarray]:
     """How the frame's depth meets the robot's (coarse meshes) placed at the calibration, on every
-    IOU_STRIDE-th pixel, and that rendered depth."""
+    IOU_STRIDE-th pixel, that rendered depth and where something nearer hides it (`registration.hidden`)."""
     coarse, grid = strided(depth, K, IOU_STRIDE)
     rendered = parts.coarse.render_depth(placed(T_cam_base, T_base_parts), grid, coarse.shape)
-    return depth_fit(rendered, coarse), rendered
+    return depth_fit(rendered, coarse), rendered, hidden(rendered, coarse)
 
 
 def _coarse_colours(rgb: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -944,8 +944,8 @@ def _coarse_judgement(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_par
     """A hypothesis judged on the coarse grid, as it stands: its depth score (`_depth_score`) and its verdict
     (`_explains_frame`), from one render and one contrast on the coarse meshes' outline (`colours`: the frame's
     `_coarse_colours`)."""
-    fit, rendered = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
-    contrast = contrast_along(rendered > 0, colours)
+    fit, rendered, unseen = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
+    contrast = contrast_along(rendered > 0, colours, unseen)
     return fit.score(contrast), _verdict(fit, rendered.size, contrast)
 
 
@@ -957,11 +957,13 @@ def _depth_score(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: n
 
 
 def _explains_frame(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, rgb: np.ndarray,
-                    depth: np.ndarray, K: np.ndarray, drawn: np.ndarray) -> str:
-    """Whether the robot placed at the calibration (`drawn`: its pixels) explains the frame well enough to be
-    a first estimate (no mask given; `_verdict`), its depth judged on the coarse grid."""
-    found, rendered = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
-    return _verdict(found, rendered.size, outline_contrast(drawn, rgb))
+                    depth: np.ndarray, K: np.ndarray, view: ModelView) -> str:
+    """Whether the robot placed at the calibration (`view`: as the frame's segmentation drew it) explains the frame
+    well enough to be a first estimate (no mask given; `_verdict`), its depth judged on the coarse grid, the colour
+    across its outline where nothing nearer hides it (`registration.hidden`)."""
+    found, rendered, _ = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
+    drawn = view.inside > 0
+    return _verdict(found, rendered.size, outline_contrast(drawn, rgb, hidden(np.where(drawn, view.depth, 0.0), depth)))
 
 
 def _verdict(found: DepthFit, n_pixels: int, contrast: float) -> str:

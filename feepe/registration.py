@@ -209,7 +209,13 @@ def depth_fit(rendered: np.ndarray, depth: np.ndarray, noise_m: float = 0.01,
     inside = cv2.erode((rendered > 0).astype(np.uint8), inset, borderValue=1).astype(bool)
     return DepthFit(int(np.count_nonzero(drawn & (np.abs(depth - rendered) < tolerance))),
                     int(np.count_nonzero(drawn & inside & (depth > rendered + tolerance + SEEN_THROUGH_M))),
-                    int(np.count_nonzero(drawn)), int(np.count_nonzero(drawn & (depth <= rendered - tolerance))))
+                    int(np.count_nonzero(drawn)), int(np.count_nonzero(hidden(rendered, depth, noise_m, noise_z2))))
+
+
+def hidden(rendered: np.ndarray, depth: np.ndarray, noise_m: float = 0.01, noise_z2: float = 0.005) -> np.ndarray:
+    """The model's pixels (`rendered`: its depth, m, 0 off it) where the sensor sees in front of its surface by
+    more than `depth_fit`'s tolerance: something nearer hides the robot there (`DepthFit.in_front`)."""
+    return (rendered > 0) & (depth > 0) & (depth <= rendered - depth_tolerance(rendered, noise_m, noise_z2))
 
 
 def exposure_gain(rgb: np.ndarray) -> float:
@@ -221,12 +227,13 @@ def exposure_gain(rgb: np.ndarray) -> float:
     return float(np.clip(255.0 / max(white, 1.0), 1.0, MAX_GAIN))
 
 
-def outline_contrast(drawn: np.ndarray, rgb: np.ndarray) -> float:
+def outline_contrast(drawn: np.ndarray, rgb: np.ndarray, unseen: np.ndarray | None = None) -> float:
     """The share of the outline of `drawn` (a model's pixels in the image, bool) along which the image's colour
     CONTRAST_OFFSET_PX inside differs from the colour as far outside by more than CONTRAST_RGB, among the
     outline's pixels that are not black or white on both sides (but at least CONTRAST_JUDGED of the outline); the
-    image's border is no outline. 0 when nothing is drawn."""
-    return contrast_along(drawn, contrast_image(rgb))
+    image's border is no outline, nor are the pixels `unseen` (`hidden` by something nearer: a hand reaching into
+    a floor, an object before the gripper). 0 when nothing is drawn."""
+    return contrast_along(drawn, contrast_image(rgb), unseen)
 
 
 def contrast_image(rgb: np.ndarray) -> np.ndarray:
@@ -235,7 +242,7 @@ def contrast_image(rgb: np.ndarray) -> np.ndarray:
     return cv2.GaussianBlur(np.asarray(rgb, np.float32), (0, 0), 1.0) * exposure_gain(rgb)
 
 
-def contrast_along(drawn: np.ndarray, image: np.ndarray) -> float:
+def contrast_along(drawn: np.ndarray, image: np.ndarray, unseen: np.ndarray | None = None) -> float:
     """outline_contrast on the frame's `contrast_image`."""
     mask = np.asarray(drawn, np.uint8)
     v, u = np.nonzero(outline_pixels(mask))
@@ -248,6 +255,8 @@ def contrast_along(drawn: np.ndarray, image: np.ndarray) -> float:
     inner, outer = np.round(pixels + step).astype(int), np.round(pixels - step).astype(int)
     size = mask.shape[::-1]
     ok = np.all((inner >= 0) & (inner < size) & (outer >= 0) & (outer < size), axis=1)
+    if unseen is not None:
+        ok &= ~unseen[v, u]
     if not ok.any():
         return 0.0
     inside, outside = image[inner[ok, 1], inner[ok, 0]], image[outer[ok, 1], outer[ok, 0]]

@@ -10,8 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from feepe import raster
 from feepe.icp import SurfaceModel
-from feepe.registration import (CONTRAST_RGB, PPF, SceneSearch, background_planes, depth_cloud, depth_fit, is_new,
-                                near_hypotheses, outline_contrast, parts, scene_points)
+from feepe.registration import (CONTRAST_RGB, PPF, SceneSearch, background_planes, depth_cloud, depth_fit, hidden,
+                                is_new, near_hypotheses, outline_contrast, parts, scene_points)
 from feepe.robot_starts import RobotSamples
 from feepe import segmentation
 from feepe.segmentation import (GIVEN_TILE_PX, ColourModel, edge_alpha_logodds, local_trust, model_view, robot_logodds,
@@ -85,7 +85,9 @@ def test_a_first_estimate_needs_more_of_the_robot_in_view_than_a_sliver():
 
     in_base = np.repeat(np.eye(4)[None], 4, 0)  # the parts' meshes are in the base frame
     parts, T_parts, depth, rgb, visible, _ = _scene()
-    assert _explains_frame(parts, T_CAM_BASE, in_base, rgb, depth, K, visible) == SURE
+    view = model_view(*parts.render_parts(T_parts, K, SHAPE))
+    assert np.array_equal(view.inside > 0, visible)
+    assert _explains_frame(parts, T_CAM_BASE, in_base, rgb, depth, K, view) == SURE
     columns = np.flatnonzero(visible.any(0))
     turned = K.copy()
     turned[0, 2] -= columns[-1] - 12  # the arm's last dozen columns stay at the image's left edge
@@ -93,7 +95,8 @@ def test_a_first_estimate_needs_more_of_the_robot_in_view_than_a_sliver():
     assert 0 < visible.mean() < ACCEPT_MIN_SHARE
     fit = depth_fit(parts.render_depth(T_parts, turned, SHAPE), depth)
     assert fit.agree > 0.9 * fit.drawn and outline_contrast(visible, rgb) > 0.8
-    assert _explains_frame(parts, T_CAM_BASE, in_base, rgb, depth, turned, visible) == FAILS
+    view = model_view(*parts.render_parts(T_parts, turned, SHAPE))
+    assert _explains_frame(parts, T_CAM_BASE, in_base, rgb, depth, turned, view) == FAILS
 
 
 def test_parts_join_points_closer_than_the_link_only():
@@ -350,6 +353,20 @@ def test_the_colour_changes_across_the_true_outline_and_not_across_one_on_the_wa
     blue = np.where(drawn[..., None], (40, 60, 160 + CONTRAST_RGB / 2), rgb).astype(np.uint8)
     assert outline_contrast(drawn, blue) < 0.3
     assert outline_contrast(np.zeros(SHAPE, bool), rgb) == 0.0
+
+
+def test_an_outline_that_something_nearer_hides_is_not_judged():
+    """A box stands before the upper arm (as a floor before a hand reaching into it): the depth shows which of the
+    arm's pixels it hides (`hidden`), and along the arm's outline behind it, box on both sides, the colour changes
+    nowhere; those outline pixels are not judged, so the true calibration's outline is borne out as fully as the
+    visible arm's."""
+    parts, T_parts, depth, rgb, visible, _ = _scene(occluder=True)
+    rendered = parts.render_depth(T_parts, K, SHAPE)
+    drawn = rendered > 0
+    unseen = hidden(rendered, depth)
+    assert unseen.any() and np.array_equal(unseen, drawn & ~visible)
+    assert outline_contrast(drawn, rgb) < 0.91
+    assert outline_contrast(drawn, rgb, unseen) > 0.99 and outline_contrast(visible, rgb) > 0.99
 
 
 def test_a_dark_image_tells_the_outline_as_a_bright_one_does():
