@@ -926,12 +926,12 @@ def _robot_cloud(seen: Segmentation, K: np.ndarray, window_px: float) -> np.ndar
 
 
 def _coarse_depth_fit(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts: np.ndarray, depth: np.ndarray,
-                      K: np.ndarray) -> tuple[DepthFit, np.ndarray, np.ndarray]:
+                      K: np.ndarray) -> tuple[DepthFit, np.ndarray]:
     """How the frame's depth meets the robot's (coarse meshes) placed at the calibration, on every
-    IOU_STRIDE-th pixel, that rendered depth and where something nearer hides it (`registration.hidden`)."""
+    IOU_STRIDE-th pixel, and that rendered depth."""
     coarse, grid = strided(depth, K, IOU_STRIDE)
     rendered = parts.coarse.render_depth(placed(T_cam_base, T_base_parts), grid, coarse.shape)
-    return depth_fit(rendered, coarse), rendered, hidden(rendered, coarse)
+    return depth_fit(rendered, coarse), rendered
 
 
 def _coarse_colours(rgb: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -944,8 +944,8 @@ def _coarse_judgement(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_par
     """A hypothesis judged on the coarse grid, as it stands: its depth score (`_depth_score`) and its verdict
     (`_explains_frame`), from one render and one contrast on the coarse meshes' outline (`colours`: the frame's
     `_coarse_colours`)."""
-    fit, rendered, unseen = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
-    contrast = contrast_along(rendered > 0, colours, unseen)
+    fit, rendered = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
+    contrast = contrast_along(rendered > 0, colours, fit.front)
     return fit.score(contrast), _verdict(fit, rendered.size, contrast)
 
 
@@ -961,7 +961,7 @@ def _explains_frame(parts: PartsSilhouette, T_cam_base: np.ndarray, T_base_parts
     """Whether the robot placed at the calibration (`view`: as the frame's segmentation drew it) explains the frame
     well enough to be a first estimate (no mask given; `_verdict`), its depth judged on the coarse grid, the colour
     across its outline where nothing nearer hides it (`registration.hidden`)."""
-    found, rendered, _ = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
+    found, rendered = _coarse_depth_fit(parts, T_cam_base, T_base_parts, depth, K)
     drawn = view.inside > 0
     return _verdict(found, rendered.size, outline_contrast(drawn, rgb, hidden(np.where(drawn, view.depth, 0.0), depth)))
 

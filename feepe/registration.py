@@ -18,7 +18,7 @@ colour changes across it (robot against background), along a wrong one it mostly
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -186,7 +186,12 @@ class DepthFit:
     seen_through: int  # the sensor sees well behind the model's surface, SEEN_THROUGH_INSET_PX inside its outline:
     # the model cannot stand there
     drawn: int  # model pixels where the sensor has depth
-    in_front: int  # the sensor sees nearer than the model's surface: something (or a stereo error) hides it
+    front: np.ndarray = field(repr=False)  # (H, W) bool: the model's pixels where the sensor sees nearer than its
+    # surface: something (or a stereo error) hides it there (`hidden`); the colour test leaves them out
+
+    @property
+    def in_front(self) -> int:
+        return int(np.count_nonzero(self.front))
 
     def score(self, contrast: float = 1.0) -> float:
         """`contrast`: the pose's outline_contrast; its agreeing pixels count as far as the image's colour
@@ -209,12 +214,12 @@ def depth_fit(rendered: np.ndarray, depth: np.ndarray, noise_m: float = 0.01,
     inside = cv2.erode((rendered > 0).astype(np.uint8), inset, borderValue=1).astype(bool)
     return DepthFit(int(np.count_nonzero(drawn & (np.abs(depth - rendered) < tolerance))),
                     int(np.count_nonzero(drawn & inside & (depth > rendered + tolerance + SEEN_THROUGH_M))),
-                    int(np.count_nonzero(drawn)), int(np.count_nonzero(hidden(rendered, depth, noise_m, noise_z2))))
+                    int(np.count_nonzero(drawn)), hidden(rendered, depth, noise_m, noise_z2))
 
 
 def hidden(rendered: np.ndarray, depth: np.ndarray, noise_m: float = 0.01, noise_z2: float = 0.005) -> np.ndarray:
     """The model's pixels (`rendered`: its depth, m, 0 off it) where the sensor sees in front of its surface by
-    more than `depth_fit`'s tolerance: something nearer hides the robot there (`DepthFit.in_front`)."""
+    more than `depth_fit`'s tolerance: something nearer hides the robot there (`DepthFit.front`)."""
     return (rendered > 0) & (depth > 0) & (depth <= rendered - depth_tolerance(rendered, noise_m, noise_z2))
 
 
